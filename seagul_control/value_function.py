@@ -1,0 +1,24 @@
+"""The protocol by which value functions cross layers (``seagul_control`` never imports torch)."""
+
+from __future__ import annotations
+
+from typing import Protocol, runtime_checkable
+
+import casadi as ca
+import numpy as np
+
+
+@runtime_checkable
+class CasadiValueFunction(Protocol):
+    """Anything the MPC can use as a terminal cost ``Vhat(x, tau)``.
+
+    ``casadi_function()`` returns a CasADi Function ``(x[nx], tau[1], theta[n_params]) -> V[1]`` whose structure
+    depends only on the architecture; ``casadi_parameters()`` returns the current numeric ``theta`` (weights and
+    normalisation). The MPC feeds ``theta`` as NLP parameters, so a newly trained network never rebuilds a solver.
+    """
+
+    task_name: str
+
+    def casadi_function(self) -> ca.Function: ...
+
+    def casadi_parameters(self) -> np.ndarray: ...

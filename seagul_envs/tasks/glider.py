@@ -1,0 +1,139 @@
+"""The perching-glider task (SPEC.md §3).
+
+Model [src: Drake (MATLAB era) ``examples/Glider/GliderPlant.m``; Underactuated "trajopt / perching"]: a flat-plate
+wing and elevator, ``x = [x, z, th, phi, dx, dz, dth]`` (centre-of-mass position, pitch positive nose-up, elevator
+angle relative to the body, velocities), input ``u = dphi`` (elevator rate). The force normal to each plate is
+``F = rho S sin(alpha) |v|^2`` written as ``rho S (sin(e) v_x - cos(e) v_z) |v|`` with ``|v| = sqrt(v.v + eps)``
+for smooth gradients. The perch (the string) is at the origin; goal ``x_d = [0, 0, pi/4, 0, 0, 0, 0]``.
+
+Task [src: ``runDircolPerching.m``; choices for the SEAGuL version]: running cost ``100 u^2``, terminal cost
+``(x_m - x_d)' diag(10, 10, 1, 10, 1, 1, 1) (x_m - x_d)``, path bounds ``x in [-4, 1]``, ``z in [-1, 1]``,
+``th in [-pi/2, pi/2]``, ``phi`` in its mechanical range; final box ``x_m = z_m = 0``, ``th_m in [pi/6, 1]``,
+``dx_m, dz_m in [-2, 2]``. ``m = 40`` free steps ``h_k in [0.015, 0.03] s`` with ``sum(h) = tau``, nominal
+``tau = 0.8 s`` and ``T0 = [0.75, 0.85] s`` (the perch must be reached at exactly ``tau``; the glider cannot loiter,
+so the feasible window is narrow).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import casadi as ca
+import numpy as np
+
+from seagul_envs.tasks.base import Task
+
+
+@dataclass(frozen=True)
+class GliderParams:
+    """Physical parameters and task constants of the perching glider (one place for every number)."""
+
+    S_w: float = 0.0885
+    """Wing area (m^2)."""
+    S_e: float = 0.0147
+    """Elevator area (m^2)."""
+    l_w: float = 0.0
+    """Centre of mass to wing centre of pressure (m)."""
+    l_h: float = 0.27
+    """Centre of mass to elevator hinge (m)."""
+    l_e: float = 0.022
+    """Elevator hinge to elevator centre of pressure (m)."""
+    I: float = 0.0015
+    """Pitch inertia (kg m^2)."""
+    m: float = 0.08
+    """Mass (kg)."""
+    g: float = 9.81
+    """Gravity (m/s^2)."""
+    rho: float = 1.204
+    """Air density (kg/m^3)."""
+    speed_eps: float = 1e-6
+    """Smoothing of |v| = sqrt(v.v + eps) (m^2/s^2)."""
+    phi_min: float = -0.9473
+    """Elevator lower limit (rad)."""
+    phi_max: float = 0.4463
+    """Elevator upper limit (rad)."""
+    u_max: float = 13.0
+    """Elevator rate limit (rad/s)."""
+    input_weight: float = 100.0
+    """Running cost ``input_weight * u^2``."""
+    terminal_weights: tuple[float, ...] = (10.0, 10.0, 1.0, 10.0, 1.0, 1.0, 1.0)
+    """Diagonal of the terminal weight on ``x_m - x_d``."""
+    horizon_steps: int = 40
+    """Transcription intervals m."""
+    step_min: float = 0.015
+    """Lower bound on each free step (s)."""
+    step_max: float = 0.03
+    """Upper bound on each free step (s)."""
+    tau_nominal: float = 0.8
+    """Nominal time to go (s)."""
+    tau_min: float = 0.75
+    """Lower end of T0 (s)."""
+    tau_max: float = 0.85
+    """Upper end of T0 (s)."""
+    rk4_substeps: int = 2
+    """RK4 substeps per (<= 30 ms) interval."""
+    control_period: float = 0.025
+    """Control period of the env and the MPC (s)."""
+    x0_low: tuple[float, ...] = (-3.75, 0.0, 0.0, 0.0, 6.5, 0.0, 0.0)
+    """Lower corner of X0."""
+    x0_high: tuple[float, ...] = (-3.25, 0.3, 0.0, 0.0, 7.5, 0.0, 0.0)
+    """Upper corner of X0."""
+
+
+def make_glider_task(params: GliderParams | None = None) -> Task:
+    """Build the perching-glider :class:`Task` (see the module docstring for the choices)."""
+    p = params or GliderParams()
+    x = ca.SX.sym("x", 7)
+    u = ca.SX.sym("u", 1)
+    _, _, th, phi, dx, dz, dth = (x[i] for i in range(7))
+    dphi = u[0]
+
+    def speed(vx: ca.SX, vz: ca.SX) -> ca.SX:
+        return ca.sqrt(vx**2 + vz**2 + p.speed_eps)
+
+    vwx = dx - p.l_w * dth * ca.sin(th)
+    vwz = dz + p.l_w * dth * ca.cos(th)
+    f_wing = p.rho * p.S_w * (ca.sin(th) * vwx - ca.cos(th) * vwz) * speed(vwx, vwz)
+    e = th + phi
+    vex = dx + p.l_h * dth * ca.sin(th) + p.l_e * (dth + dphi) * ca.sin(e)
+    vez = dz - p.l_h * dth * ca.cos(th) - p.l_e * (dth + dphi) * ca.cos(e)
+    f_elev = p.rho * p.S_e * (ca.sin(e) * vex - ca.cos(e) * vez) * speed(vex, vez)
+    ddx = -(f_wing * ca.sin(th) + f_elev * ca.sin(e)) / p.m
+    ddz = (f_wing * ca.cos(th) + f_elev * ca.cos(e)) / p.m - p.g
+    ddth = (f_wing * p.l_w - f_elev * (p.l_h * ca.cos(phi) + p.l_e)) / p.I
+    xdot = ca.vertcat(dx, dz, dth, dphi, ddx, ddz, ddth)
+    dynamics = ca.Function("glider_f", [x, u], [xdot], ["x", "u"], ["xdot"])
+
+    goal = np.array([0.0, 0.0, np.pi / 4, 0.0, 0.0, 0.0, 0.0])
+    stage_cost = ca.Function("glider_l", [x, u], [p.input_weight * u[0] ** 2], ["x", "u"], ["l"])
+    err = x - goal
+    Qf = np.diag(p.terminal_weights)
+    terminal_cost = ca.Function("glider_lf", [x], [ca.bilin(Qf, err, err)], ["x"], ["lf"])
+
+    inf = np.inf
+    return Task(
+        name="glider",
+        state_names=("x", "z", "th", "phi", "dx", "dz", "dth"),
+        control_names=("elevator_rate",),
+        dynamics=dynamics,
+        stage_cost=stage_cost,
+        terminal_cost=terminal_cost,
+        goal=goal,
+        u_low=np.array([-p.u_max]),
+        u_high=np.array([p.u_max]),
+        x_low=np.array([-4.0, -1.0, -np.pi / 2, p.phi_min, -inf, -inf, -inf]),
+        x_high=np.array([1.0, 1.0, np.pi / 2, p.phi_max, inf, inf, inf]),
+        x_final_low=np.array([0.0, 0.0, np.pi / 6, p.phi_min, -2.0, -2.0, -inf]),
+        x_final_high=np.array([0.0, 0.0, 1.0, p.phi_max, 2.0, 2.0, inf]),
+        x0_low=np.array(p.x0_low),
+        x0_high=np.array(p.x0_high),
+        tau_range=(p.tau_min, p.tau_max),
+        tau_nominal=p.tau_nominal,
+        num_steps=p.horizon_steps,
+        step_bounds=(p.step_min, p.step_max),
+        fixed_step=False,
+        rk4_substeps=p.rk4_substeps,
+        control_period=p.control_period,
+        params=p,
+        extras={"Qf": Qf},
+    )

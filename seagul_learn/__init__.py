@@ -1,0 +1,1 @@
+"""seagul_learn: trajectory optimization with dual gradients, SEAGuL sampling, value networks, training, CLI."""
