@@ -1,0 +1,260 @@
+"""The learned value function ``Vhat(x, tau)``: a small tanh MLP with its standardisation stored inside.
+
+The network maps ``z = ([x, tau] - in_mean) / in_std`` through ``tanh`` hidden layers to ``y`` and returns
+``V = y * out_std + out_mean``; the four statistics are buffers (set once from data with
+:meth:`ValueNetwork.set_normalization`), so a saved file is self-contained. Everything is float64: the MPC and the
+gradient checks need it.
+
+For NLPs the same network is available as a CasADi expression (:meth:`casadi_function`) whose parameters
+``theta`` are the flattened normalisation and weights in a layout fixed by the architecture, so an MPC built once
+accepts any newly trained network of the same shape (it implements
+:class:`seagul_control.value_function.CasadiValueFunction`).
+
+File format (``save``/``load``): one ``torch.save`` file holding a plain dict
+``{"format": "seagul-value-network", "version": 1, "task_name", "config": {"nx", "hidden"}, "state_dict"}`` (tensors
+and builtins only, so it loads with ``weights_only=True``).
+"""
+
+from __future__ import annotations
+
+import itertools
+import os
+import tempfile
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any
+
+import casadi as ca
+import numpy as np
+import torch
+from torch import nn
+
+FORMAT_TAG = "seagul-value-network"
+FORMAT_VERSION = 1
+DTYPE = torch.float64
+_MIN_STD = 1e-8
+
+
+class ValueNetworkFileError(ValueError):
+    """A network file is missing, unreadable, corrupt or not a seagul value network."""
+
+
+@dataclass(frozen=True)
+class ValueNetworkConfig:
+    """Architecture of a :class:`ValueNetwork` (everything needed to rebuild it)."""
+
+    nx: int
+    """State dimension (the input is ``[x, tau]``, so ``nx + 1`` features)."""
+    hidden: tuple[int, ...] = (32,)
+    """Widths of the tanh hidden layers (paper: one layer of 32)."""
+
+
+class ValueNetwork(nn.Module):
+    """``Vhat(x, tau)``: standardised inputs, tanh hidden layers, a linear output, de-standardised value."""
+
+    def __init__(self, nx: int, hidden: Sequence[int] = (32,), task_name: str = "", seed: int | None = None) -> None:
+        """Build the network; ``seed`` makes the initial weights reproducible without touching global RNG state."""
+        super().__init__()
+        if int(nx) < 1:
+            raise ValueError(f"nx must be >= 1, got {nx}")
+        hidden = tuple(int(h) for h in hidden)
+        if not hidden or any(h < 1 for h in hidden):
+            raise ValueError(f"hidden widths must be a non-empty sequence of positive integers, got {hidden}")
+        self.config = ValueNetworkConfig(nx=int(nx), hidden=hidden)
+        self.task_name = str(task_name)
+        widths = [self.config.nx + 1, *hidden, 1]
+        with torch.random.fork_rng(devices=[]):
+            if seed is not None:
+                torch.manual_seed(int(seed))
+            self.layers = nn.ModuleList(nn.Linear(a, b, dtype=DTYPE) for a, b in itertools.pairwise(widths))
+        n_in = self.config.nx + 1
+        self.register_buffer("in_mean", torch.zeros(n_in, dtype=DTYPE))
+        self.register_buffer("in_std", torch.ones(n_in, dtype=DTYPE))
+        self.register_buffer("out_mean", torch.zeros(1, dtype=DTYPE))
+        self.register_buffer("out_std", torch.ones(1, dtype=DTYPE))
+
+    # ------------------------------------------------------------------ torch
+    @property
+    def nx(self) -> int:
+        """State dimension."""
+        return self.config.nx
+
+    def _inputs(self, x: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+        x = torch.as_tensor(x, dtype=DTYPE)
+        tau = torch.as_tensor(tau, dtype=DTYPE)
+        if x.ndim != 2 or x.shape[1] != self.nx:
+            raise ValueError(f"x must have shape (batch, {self.nx}), got {tuple(x.shape)}")
+        tau = tau.reshape(-1)
+        if tau.shape[0] != x.shape[0]:
+            raise ValueError(f"tau must have one entry per row of x ({x.shape[0]}), got shape {tuple(tau.shape)}")
+        return torch.cat([x, tau[:, None]], dim=1)
+
+    def forward_standardized(self, x: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+        """The standardised output ``y = (Vhat - out_mean) / out_std``, shape ``(batch,)`` (the training target)."""
+        h = (self._inputs(x, tau) - self.in_mean) / self.in_std
+        for layer in self.layers[:-1]:
+            h = torch.tanh(layer(h))
+        return self.layers[-1](h)[:, 0]
+
+    def forward(self, x: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+        """``Vhat`` for a batch: ``x`` of shape ``(batch, nx)``, ``tau`` of shape ``(batch,)``; returns ``(batch,)``."""
+        return self.forward_standardized(x, tau) * self.out_std + self.out_mean
+
+    def value_and_grad(self, x: Any, tau: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """NumPy helper: ``(Vhat, dVhat/dx, dVhat/dtau)`` for a batch (or a single ``x`` of shape ``(nx,)``)."""
+        x_arr = np.asarray(x, dtype=np.float64)
+        single = x_arr.ndim == 1
+        x_arr = np.atleast_2d(x_arr)
+        tau_arr = np.broadcast_to(np.asarray(tau, dtype=np.float64).reshape(-1), (x_arr.shape[0],))
+        xt = torch.tensor(x_arr, dtype=DTYPE, requires_grad=True)
+        tt = torch.tensor(np.array(tau_arr), dtype=DTYPE, requires_grad=True)
+        with torch.enable_grad():
+            v = self.forward(xt, tt)
+            gx, gt = torch.autograd.grad(v.sum(), [xt, tt])
+        out = (v.detach().numpy(), gx.numpy(), gt.numpy())
+        return (out[0][0], out[1][0], out[2][0]) if single else out  # type: ignore[return-value]
+
+    def predict(self, x: Any, tau: Any) -> np.ndarray:
+        """NumPy values ``Vhat(x, tau)`` for a batch."""
+        x_arr = np.atleast_2d(np.asarray(x, dtype=np.float64))
+        tau_arr = np.broadcast_to(np.asarray(tau, dtype=np.float64).reshape(-1), (x_arr.shape[0],))
+        with torch.no_grad():
+            return self.forward(torch.tensor(x_arr), torch.tensor(np.array(tau_arr))).numpy()
+
+    @torch.no_grad()
+    def set_normalization(self, x: np.ndarray, tau: np.ndarray, value: np.ndarray) -> None:
+        """Set the input/output standardisation from data (constant features get std 1, not 0)."""
+        inputs = np.column_stack([np.asarray(x, dtype=np.float64), np.asarray(tau, dtype=np.float64).reshape(-1)])
+        value = np.asarray(value, dtype=np.float64).reshape(-1)
+        if inputs.shape[1] != self.nx + 1 or inputs.shape[0] != value.shape[0] or value.size == 0:
+            raise ValueError(f"normalisation data must be x (n, {self.nx}), tau (n,), value (n,) with n >= 1")
+        if not (np.all(np.isfinite(inputs)) and np.all(np.isfinite(value))):
+            raise ValueError("normalisation data contains NaN or inf")
+        in_std = inputs.std(axis=0)
+        out_std = value.std()
+        self.in_mean.copy_(torch.tensor(inputs.mean(axis=0)))
+        self.in_std.copy_(torch.tensor(np.where(in_std > _MIN_STD, in_std, 1.0)))
+        self.out_mean.fill_(float(value.mean()))
+        self.out_std.fill_(float(out_std) if out_std > _MIN_STD else 1.0)
+
+    # ----------------------------------------------------------------- casadi
+    def casadi_parameters(self) -> np.ndarray:
+        """``theta``: normalisation then each layer's weight (row-major) and bias, as one float64 vector."""
+        parts = [self.in_mean, self.in_std]
+        for layer in self.layers:
+            parts += [layer.weight.reshape(-1), layer.bias]
+        parts += [self.out_mean, self.out_std]
+        return torch.cat([p.detach().reshape(-1) for p in parts]).numpy().astype(np.float64)
+
+    @property
+    def num_casadi_parameters(self) -> int:
+        """Length of ``theta``."""
+        n_in = self.nx + 1
+        widths = [n_in, *self.config.hidden, 1]
+        return 2 * n_in + sum(a * b + b for a, b in itertools.pairwise(widths)) + 2
+
+    def casadi_function(self) -> ca.Function:
+        """CasADi ``(x[nx], tau[1], theta[n]) -> V[1]``; depends only on the architecture, not on the weights."""
+        return _casadi_network(self.nx, self.config.hidden)
+
+    def to_casadi(self) -> ca.Function:
+        """CasADi ``(x[nx], tau[1]) -> V[1]`` with the current weights embedded as constants."""
+        x = ca.SX.sym("x", self.nx)
+        tau = ca.SX.sym("tau", 1)
+        value = self.casadi_function()(x, tau, ca.DM(self.casadi_parameters()))
+        return ca.Function("value_network", [x, tau], [value], ["x", "tau"], ["V"])
+
+    # -------------------------------------------------------------------- i/o
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the network to ``path`` atomically (temp file + rename); returns the path."""
+        path = Path(path)
+        payload = {
+            "format": FORMAT_TAG,
+            "version": FORMAT_VERSION,
+            "task_name": self.task_name,
+            "config": {"nx": self.config.nx, "hidden": list(self.config.hidden)},
+            "state_dict": {k: v.detach().clone() for k, v in self.state_dict().items()},
+        }
+        path.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
+        try:
+            with os.fdopen(fd, "wb") as f:
+                torch.save(payload, f)
+                f.flush()
+                os.fsync(f.fileno())
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+        return path
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str]) -> ValueNetwork:
+        """Read a file written by :meth:`save`; raises :class:`ValueNetworkFileError` naming the file and problem."""
+        path = Path(path)
+        if not path.is_file():
+            raise ValueNetworkFileError(f"value network file {str(path)!r} does not exist")
+        try:
+            payload = torch.load(path, map_location="cpu", weights_only=True)
+        except Exception as exc:
+            raise ValueNetworkFileError(
+                f"value network file {str(path)!r} is unreadable or corrupt ({type(exc).__name__}: {exc})"
+            ) from exc
+        if not isinstance(payload, dict) or payload.get("format") != FORMAT_TAG:
+            raise ValueNetworkFileError(f"{str(path)!r} is not a seagul value network file (no {FORMAT_TAG!r} tag)")
+        if payload.get("version") != FORMAT_VERSION:
+            raise ValueNetworkFileError(
+                f"{str(path)!r} has value-network format version {payload.get('version')!r}; "
+                f"this seagul reads version {FORMAT_VERSION}"
+            )
+        try:
+            config = payload["config"]
+            net = cls(nx=int(config["nx"]), hidden=tuple(config["hidden"]), task_name=str(payload["task_name"]))
+            net.load_state_dict(payload["state_dict"])
+        except Exception as exc:
+            raise ValueNetworkFileError(
+                f"value network file {str(path)!r} is inconsistent ({type(exc).__name__}: {exc})"
+            ) from exc
+        return net
+
+    def extra_repr(self) -> str:
+        return f"task={self.task_name!r}, config={asdict(self.config)}"
+
+
+_CASADI_CACHE: dict[tuple[int, tuple[int, ...]], ca.Function] = {}
+
+
+def _casadi_network(nx: int, hidden: tuple[int, ...]) -> ca.Function:
+    """Build (once per architecture) the symbolic network with ``theta`` laid out as in ``casadi_parameters``."""
+    key = (nx, hidden)
+    if key in _CASADI_CACHE:
+        return _CASADI_CACHE[key]
+    n_in = nx + 1
+    widths = [n_in, *hidden, 1]
+    n_theta = 2 * n_in + sum(a * b + b for a, b in itertools.pairwise(widths)) + 2
+    x = ca.SX.sym("x", nx)
+    tau = ca.SX.sym("tau", 1)
+    theta = ca.SX.sym("theta", n_theta)
+    pos = 0
+
+    def take(n: int) -> ca.SX:
+        nonlocal pos
+        out = theta[pos : pos + n]
+        pos += n
+        return out
+
+    in_mean, in_std = take(n_in), take(n_in)
+    h = (ca.vertcat(x, tau) - in_mean) / in_std
+    for i, (a, b) in enumerate(itertools.pairwise(widths)):
+        # torch stores W as (out, in) row-major; CasADi reshapes column-major, hence the transpose.
+        weight = ca.reshape(take(a * b), a, b).T
+        bias = take(b)
+        h = ca.mtimes(weight, h) + bias
+        if i < len(widths) - 2:
+            h = ca.tanh(h)
+    out_mean, out_std = take(1), take(1)
+    value = h * out_std + out_mean
+    fn = ca.Function("value_network_theta", [x, tau, theta], [value], ["x", "tau", "theta"], ["V"])
+    _CASADI_CACHE[key] = fn
+    return fn
