@@ -1,0 +1,103 @@
+"""Dataset: atomic records, round trips, resume-safety, clear errors, failed solves never become data."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from toy_problem import ToySolver
+
+from seagul_envs import make_task
+from seagul_learn.dataset import Dataset, DatasetError, SolveRecord, training_arrays
+
+
+@pytest.fixture
+def toy():
+    return ToySolver(make_task("acrobot"), num_steps=5, fail_above=np.pi + 0.2)
+
+
+def _record(toy: ToySolver, index: int, x0: float = np.pi) -> SolveRecord:
+    x = np.array([x0, 0.1, -0.2, 0.3])
+    return SolveRecord.from_result(toy.solve(x, 5.0), index, "uniform", chain=-1, step=0)
+
+
+def test_round_trip_preserves_every_field(tmp_path, toy):
+    ds = Dataset.open(tmp_path / "d", "acrobot", meta={"solver": "toy"})
+    rec = _record(toy, 3)
+    rec.chain, rec.step = 2, 4
+    ds.write(rec)
+    back = Dataset.open(tmp_path / "d").read(3)
+    for name, value in vars(rec).items():
+        got = getattr(back, name)
+        if isinstance(value, np.ndarray):
+            np.testing.assert_array_equal(got, value)
+        else:
+            assert got == value and type(got) is type(value), name
+    # portable: plain npz without pickles, readable by numpy alone
+    with np.load(ds.record_path(3), allow_pickle=False) as raw:
+        assert str(raw["status"]) == "Solve_Succeeded" and raw["states"].shape == (6, 4)
+
+
+def test_indices_ignore_half_written_temp_files_and_open_cleans_them(tmp_path, toy):
+    ds = Dataset.open(tmp_path / "d", "acrobot")
+    ds.write(_record(toy, 0))
+    stray = ds.records_dir / ".tmp-abc.npz"
+    stray.write_bytes(b"half a record")
+    assert ds.indices() == [0] and len(ds) == 1 and 0 in ds and 1 not in ds
+    Dataset.open(tmp_path / "d")
+    assert not stray.exists()
+
+
+def test_refuses_duplicate_index(tmp_path, toy):
+    ds = Dataset.open(tmp_path / "d", "acrobot")
+    ds.write(_record(toy, 0))
+    with pytest.raises(DatasetError, match="record 0 already exists"):
+        ds.write(_record(toy, 0))
+
+
+def test_failed_solves_are_stored_but_never_training_data(tmp_path, toy):
+    ds = Dataset.open(tmp_path / "d", "acrobot")
+    ds.write(_record(toy, 0))
+    ds.write(_record(toy, 1, x0=np.pi + 0.25))  # in the toy's failure region
+    recs = ds.records()
+    assert [r.success for r in recs] == [True, False]
+    assert recs[1].status == "Infeasible_Problem_Detected"
+    arrays = training_arrays(recs)
+    assert len(arrays) == 6 and set(arrays.solve_index.tolist()) == {0}
+    np.testing.assert_array_equal(arrays.knot, np.arange(6))
+    np.testing.assert_array_equal(arrays.value, recs[0].cost_to_go)
+    np.testing.assert_array_equal(arrays.grad_x, recs[0].knot_grads)
+    init = arrays.initial()
+    assert len(init) == 1 and init.value[0] == recs[0].value
+    assert len(training_arrays([recs[1]], nx=4)) == 0
+
+
+def test_open_errors_name_the_problem(tmp_path, toy):
+    with pytest.raises(DatasetError, match="not a seagul dataset"):
+        Dataset.open(tmp_path / "missing")
+    (tmp_path / "foreign").mkdir()
+    (tmp_path / "foreign" / "dataset.json").write_text(json.dumps({"format": "other"}))
+    with pytest.raises(DatasetError, match="not a seagul dataset"):
+        Dataset.open(tmp_path / "foreign")
+    (tmp_path / "broken").mkdir()
+    (tmp_path / "broken" / "dataset.json").write_text("{not json")
+    with pytest.raises(DatasetError, match="corrupt"):
+        Dataset.open(tmp_path / "broken")
+    Dataset.open(tmp_path / "d", "acrobot", meta={"a": 1})
+    with pytest.raises(DatasetError, match="holds task 'acrobot', not 'glider'"):
+        Dataset.open(tmp_path / "d", "glider")
+    with pytest.raises(DatasetError, match="other settings"):
+        Dataset.open(tmp_path / "d", "acrobot", meta={"a": 2})
+    (tmp_path / "full").mkdir()
+    (tmp_path / "full" / "x").write_text("x")
+    with pytest.raises(DatasetError, match="not empty"):
+        Dataset.open(tmp_path / "full", "acrobot")
+
+
+def test_corrupt_record_is_reported(tmp_path, toy):
+    ds = Dataset.open(tmp_path / "d", "acrobot")
+    ds.write(_record(toy, 7))
+    ds.record_path(7).write_bytes(b"garbage")
+    with pytest.raises(DatasetError, match=r"solve-000007\.npz.*corrupt"):
+        ds.read(7)
