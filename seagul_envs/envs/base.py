@@ -1,0 +1,345 @@
+"""Shared machinery of the seagul Gymnasium envs (SPEC.md §4).
+
+Every env simulates one :class:`~seagul_envs.tasks.base.Task` with a zero-order hold over a control period ``dt``.
+Conventions shared by all of them:
+
+* Observation ``[x_0, ..., x_{nx-1}, time_to_go]`` (float32); ``info["state"]`` is the exact float64 state and
+  ``info["time_to_go"]`` the float time to go, in both reset and step infos.
+* Reward of a step from ``x_k`` with input ``u_k`` over ``h``: ``-h * l(x_k, u_k)``, the same left-point rule as the
+  transcription's running cost ``sum_k h_k l(x_k, u_k)``; on the step where the episode ends (time to go reaches 0,
+  or the state leaves the task's bounds) ``-l_f(x_end)`` is added, so an episode's return is minus the cost of the
+  trajectory flown. Charging ``l_f`` at a crash too keeps a crash from being cheaper than arriving at that same place.
+* The episode has ``ceil(tau / dt)`` steps, counted with an integer (no float accumulation); when ``tau`` is not a
+  multiple of ``dt`` the last step is shorter so the time to go reaches exactly 0.
+* Actions are clipped to the Box (as Gymnasium's continuous envs do); a NaN/inf or wrongly shaped action raises a
+  ValueError before anything changes.
+* Stepping after the episode ended warns once (as Gymnasium's classic-control envs do) and returns the final
+  observation again with reward 0, so the episode's return stays minus its cost.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Any, ClassVar, SupportsFloat
+
+import casadi as ca
+import gymnasium as gym
+import numpy as np
+from gymnasium import logger, spaces
+
+from seagul_envs.rendering import HumanViewer
+from seagul_envs.tasks import make_task
+from seagul_envs.tasks.base import Task
+
+_RESET_OPTION_KEYS = frozenset({"state", "time_to_go"})
+# Observation bounds of the state entries: Gymnasium's own convention (CartPole) for unbounded coordinates.
+# Infinite bounds make `check_env` warn, and the task bounds cannot serve: a crash step observes a state past them.
+_FLOAT32_MAX = float(np.finfo(np.float32).max)
+
+
+class BufferedFunction:
+    """A numeric CasADi Function called through its FunctionBuffer on preallocated numpy arrays.
+
+    ``Function.__call__`` converts every argument to a DM and every result back (~20 us for the acrobot's one-period
+    map); the buffer interface evaluates the same compiled SX instructions on our own memory (~8 us).
+    """
+
+    def __init__(self, function: ca.Function) -> None:
+        self.function = function
+        self.args = [np.zeros(function.nnz_in(i)) for i in range(function.n_in())]
+        self.res = [np.zeros(function.nnz_out(i)) for i in range(function.n_out())]
+        self._buffer, self._eval = function.buffer()
+        for i, a in enumerate(self.args):
+            self._buffer.set_arg(i, memoryview(a))
+        for i, r in enumerate(self.res):
+            self._buffer.set_res(i, memoryview(r))
+
+    def __call__(self) -> None:
+        """Evaluate on ``self.args`` into ``self.res`` (fill the inputs in place first)."""
+        self._eval()
+
+
+def step_function(task: Task, dt: float) -> ca.Function:
+    """``(x, u) -> (x(t + dt), l(x, u))``: ``task.simulator(dt)`` and the stage cost in one Function call."""
+    x = ca.SX.sym("x", task.nx)
+    u = ca.SX.sym("u", task.nu)
+    sim = task.simulator(dt)
+    return ca.Function(f"{task.name}_env_step", [x, u], [sim(x, u), task.stage_cost(x, u)], ["x", "u"], ["xn", "l"])
+
+
+class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
+    """Base class of the seagul envs; subclasses set the state and advance it (see the module docstring).
+
+    Subclasses implement :meth:`_set_sim_state`, :meth:`_advance` and :meth:`_render_frame`, and may override
+    :meth:`_restore_runtime` to rebuild unpicklable simulator handles after unpickling.
+    """
+
+    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
+
+    def __init__(self, task: Task, dt: float | None = None, render_mode: str | None = None) -> None:
+        self.task = task
+        dt = task.control_period if dt is None else dt
+        try:
+            dt = float(dt)
+        except (TypeError, ValueError):
+            raise ValueError(f"{task.name}: dt must be a positive number of seconds, got {dt!r}") from None
+        if not (math.isfinite(dt) and dt > 0.0):
+            raise ValueError(f"{task.name}: dt must be a positive number of seconds, got {dt}")
+        self.dt = dt
+        if render_mode is not None and render_mode not in self.metadata["render_modes"]:
+            raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
+        self.render_mode = render_mode
+
+        nx = task.nx
+        self.action_space = spaces.Box(task.u_low.astype(np.float32), task.u_high.astype(np.float32), dtype=np.float32)
+        tau_max = float(task.tau_range[1])
+        low = np.concatenate([np.full(nx, -_FLOAT32_MAX), [0.0]]).astype(np.float32)
+        high = np.concatenate([np.full(nx, _FLOAT32_MAX), [tau_max]]).astype(np.float32)
+        self.observation_space = spaces.Box(low, high, dtype=np.float32)
+
+        # Hot-path constants (plain floats/arrays: no attribute chains or validation per step).
+        self._nx = nx
+        self._nu = task.nu
+        self._u_low = task.u_low.astype(np.float64)
+        self._u_high = task.u_high.astype(np.float64)
+        self._x_low = task.x_low.astype(np.float64)
+        self._x_high = task.x_high.astype(np.float64)
+        self._bounded = bool(np.any(np.isfinite(self._x_low)) or np.any(np.isfinite(self._x_high)))
+
+        # Episode bookkeeping; a fresh env must be reset before stepping (Gymnasium's OrderEnforcing checks it).
+        self._x = np.zeros(nx)
+        self._tau = 0.0
+        self._k = 0
+        self._n_steps = 0
+        self._last_h = dt
+        self._last_u = np.zeros(task.nu)
+        self._terminated = False
+        self._truncated = False
+        self._warned_done = False
+        self._viewer: HumanViewer | None = None
+        self._restore_runtime()
+
+    # ------------------------------------------------------------------ hooks
+    def _set_sim_state(self, x: np.ndarray) -> None:
+        """Put the simulator in state ``x`` (float64, validated)."""
+        raise NotImplementedError
+
+    def _advance(self, u: np.ndarray, h: float) -> tuple[np.ndarray, float]:
+        """Integrate over ``h`` with ``u`` held; return ``(x_next, l(x_k, u))`` with a fresh ``x_next`` array."""
+        raise NotImplementedError
+
+    def _render_frame(self) -> np.ndarray:
+        """An RGB frame (H, W, 3) uint8 of the current state."""
+        raise NotImplementedError
+
+    def _restore_runtime(self) -> None:
+        """(Re)build handles that cannot be pickled (numeric kernels, simulators)."""
+
+    # ------------------------------------------------------------- properties
+    @property
+    def state(self) -> np.ndarray:
+        """A float64 copy of the current state."""
+        return self._x.copy()
+
+    @property
+    def time_to_go(self) -> float:
+        """Time to go of the episode (s), derived from the integer step counter."""
+        if self._k >= self._n_steps:
+            return 0.0
+        return self._tau - self._k * self.dt
+
+    @property
+    def max_episode_steps(self) -> int:
+        """Number of steps of the current episode (``ceil(tau / dt)``)."""
+        return self._n_steps
+
+    # ------------------------------------------------------------- Gymnasium
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
+        """Start an episode; ``options={"state": x0, "time_to_go": tau}`` (both optional) choose the start.
+
+        Without ``"state"`` the start is a uniform draw from X0 with ``self.np_random``; without ``"time_to_go"`` it
+        is the task's nominal ``tau``. Raises ValueError for unknown option keys, a state of the wrong shape, with
+        NaN/inf or outside the task's state bounds, and a time to go that is not in ``(0, max T0]``.
+        """
+        super().reset(seed=seed)
+        options = {} if options is None else options
+        if not isinstance(options, dict):
+            raise ValueError(f"{self.task.name}: reset options must be a dict, got {type(options).__name__}")
+        unknown = set(options) - _RESET_OPTION_KEYS
+        if unknown:
+            raise ValueError(
+                f"{self.task.name}: unknown reset option(s) {sorted(unknown)}; accepted: {sorted(_RESET_OPTION_KEYS)}"
+            )
+        # Validate everything before touching the episode, so a bad call leaves the env as it was.
+        if options.get("state") is not None:
+            x0 = self.task.check_state(options["state"], "reset state")
+            if np.any(x0 < self._x_low) or np.any(x0 > self._x_high):
+                raise ValueError(
+                    f"{self.task.name}: reset state {x0.tolist()} is outside the state bounds "
+                    f"[{self._x_low.tolist()}, {self._x_high.tolist()}]"
+                )
+        else:
+            x0 = self.task.sample_x0(self.np_random)
+        if options.get("time_to_go") is not None:
+            tau = self.task.check_tau(options["time_to_go"], allow_shorter=True)
+            if tau <= 0.0:
+                raise ValueError(f"{self.task.name}: time to go must be positive, got {tau}")
+        else:
+            tau = float(self.task.tau_nominal)
+
+        self._set_sim_state(x0)
+        self._x = x0.copy()
+        self._tau = tau
+        self._k = 0
+        # 1e-9 guards against 5.0 / 0.1 = 50.000000000000007 making a 51st step of 1e-15 s.
+        self._n_steps = max(1, math.ceil(tau / self.dt - 1e-9))
+        last = tau - (self._n_steps - 1) * self.dt
+        self._last_h = self.dt if abs(last - self.dt) <= 1e-9 * self.dt else last
+        self._last_u = np.zeros(self._nu)
+        self._terminated = self._truncated = False
+        self._warned_done = False
+        if self.render_mode == "human":
+            self.render()
+        return self._obs(), self._info()
+
+    def step(self, action: Any) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
+        """Advance one control period (see the module docstring for reward and episode end)."""
+        if self._terminated or self._truncated:
+            if not self._warned_done:
+                logger.warn(
+                    "You are calling 'step()' even though this environment has already returned terminated = True "
+                    "or truncated = True. You should always call 'reset()' once you receive 'terminated = True' or "
+                    "'truncated = True' -- the state is frozen and the reward is 0."
+                )
+                self._warned_done = True
+            return self._obs(), 0.0, self._terminated, self._truncated, self._info()
+
+        u = self._check_action(action)
+        k = self._k
+        h = self.dt if k < self._n_steps - 1 else self._last_h
+        x_next, stage = self._advance(u, h)
+        self._x = x_next
+        self._k = k + 1
+        self._last_u = u
+        reward = -h * stage
+        self._truncated = self._k >= self._n_steps
+        if self._bounded or not np.isfinite(x_next).all():
+            self._terminated = not (
+                np.isfinite(x_next).all() and np.all(x_next >= self._x_low) and np.all(x_next <= self._x_high)
+            )
+        if self._terminated or self._truncated:
+            reward -= float(self.task.terminal_cost(x_next))
+        if self.render_mode == "human":
+            self.render()
+        return self._obs(), float(reward), self._terminated, self._truncated, self._info()
+
+    def render(self) -> np.ndarray | None:
+        """``rgb_array``: an (H, W, 3) uint8 frame; ``human``: show it (nothing is shown without a display)."""
+        if self.render_mode is None:
+            logger.warn(
+                "You are calling render method without specifying any render mode. You can specify the render_mode "
+                f'at initialization, e.g. gym.make("{self.spec.id if self.spec else type(self).__name__}", '
+                'render_mode="rgb_array")'
+            )
+            return None
+        frame = self._render_frame()
+        if self.render_mode == "rgb_array":
+            return frame
+        if self._viewer is None:
+            self._viewer = HumanViewer(type(self).__name__, self.metadata["render_fps"])
+        self._viewer.show(frame)
+        return None
+
+    def close(self) -> None:
+        if self._viewer is not None:
+            self._viewer.close()
+            self._viewer = None
+
+    # ---------------------------------------------------------------- helpers
+    def _check_action(self, action: Any) -> np.ndarray:
+        """Validate (shape, finiteness) and clip an action; raise ValueError before any state changes."""
+        u = np.asarray(action, dtype=np.float64)
+        if u.shape != (self._nu,):
+            if u.shape == () and self._nu == 1:
+                u = u.reshape(1)
+            else:
+                raise ValueError(
+                    f"{self.task.name}: action must have shape ({self._nu},) {list(self.task.control_names)}, "
+                    f"got shape {u.shape}"
+                )
+        if not np.isfinite(u).all():
+            raise ValueError(f"{self.task.name}: action contains NaN or inf: {u.tolist()}")
+        return np.minimum(np.maximum(u, self._u_low), self._u_high)
+
+    def _obs(self) -> np.ndarray:
+        obs = np.empty(self._nx + 1, dtype=np.float32)
+        obs[: self._nx] = self._x
+        obs[self._nx] = self.time_to_go
+        return obs
+
+    def _info(self) -> dict[str, Any]:
+        return {"state": self._x.copy(), "time_to_go": self.time_to_go}
+
+    def _ttg_fraction(self) -> float:
+        return self.time_to_go / max(float(self.task.tau_range[1]), 1e-12)
+
+    # --------------------------------------------------------------- pickling
+    def __getstate__(self) -> dict[str, Any]:
+        state = self.__dict__.copy()
+        for key in self._runtime_keys():
+            state.pop(key, None)
+        state["_viewer"] = None
+        # The registry's shared task is restored by name (cheap, keeps the simulator cache); a custom task pickles.
+        if self.task is _shared_task(self.task.name):
+            state["task"] = self.task.name
+        return state
+
+    def __setstate__(self, state: dict[str, Any]) -> None:
+        if isinstance(state["task"], str):
+            state["task"] = make_task(state["task"])
+        self.__dict__.update(state)
+        self._restore_runtime()
+        if self._n_steps > 0:
+            self._set_sim_state(self._x)
+
+    def _runtime_keys(self) -> tuple[str, ...]:
+        """Attributes rebuilt by :meth:`_restore_runtime` instead of pickled."""
+        return ()
+
+
+def _shared_task(name: str) -> Task | None:
+    try:
+        return make_task(name)
+    except ValueError:
+        return None
+
+
+class TaskSimulatorEnv(SeagulEnv):
+    """An env that integrates the Task's CasADi model with the RK4 map of ``task.simulator(dt)``.
+
+    The hot path is one FunctionBuffer evaluation of ``(x, u) -> (x_next, l(x, u))`` generated from the model
+    (:func:`step_function`), on preallocated arrays.
+    """
+
+    def _restore_runtime(self) -> None:
+        self._kernels: dict[float, BufferedFunction] = {}
+
+    def _runtime_keys(self) -> tuple[str, ...]:
+        return ("_kernels",)
+
+    def _kernel(self, h: float) -> BufferedFunction:
+        kernel = self._kernels.get(h)
+        if kernel is None:
+            kernel = self._kernels[h] = BufferedFunction(step_function(self.task, h))
+        return kernel
+
+    def _set_sim_state(self, x: np.ndarray) -> None:
+        pass  # the state lives in self._x
+
+    def _advance(self, u: np.ndarray, h: float) -> tuple[np.ndarray, float]:
+        kernel = self._kernels.get(h) or self._kernel(h)
+        x_arg, u_arg = kernel.args
+        x_arg[:] = self._x
+        u_arg[:] = u
+        kernel()
+        return kernel.res[0].copy(), float(kernel.res[1][0])

@@ -1,0 +1,93 @@
+"""``SeagulGlider-v0``: the perching glider simulated from the Task's CasADi model."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from seagul_envs.envs.base import TaskSimulatorEnv
+from seagul_envs.rendering import glider_frame
+from seagul_envs.tasks import make_task
+from seagul_envs.tasks.base import Task
+
+
+class GliderEnv(TaskSimulatorEnv):
+    """The perching glider of SEAGuL (SPEC.md §3), integrated from the Task's CasADi model.
+
+    ## Description
+
+    A flat-plate glider (wing at the centre of mass, elevator on a tail boom) launched at ~7 m/s must land on a perch
+    (a string at the origin) by pitching up to a post-stall attitude and bleeding its speed, reaching
+    ``x_d = [0, 0, pi/4, 0, 0, 0, 0]`` when the time to go runs out. The dynamics are Drake's ``GliderPlant``
+    (parameters in :class:`~seagul_envs.tasks.glider.GliderParams`); the env integrates ``task.dynamics`` with RK4
+    substeps of at most 5 ms over each 25 ms control period, the elevator rate held constant (zero-order hold).
+
+    ## Action Space
+
+    ``Box(-13, 13, (1,), float32)``: elevator rate ``dphi`` in rad/s. Out-of-range actions are clipped; a NaN/inf or
+    wrongly shaped action raises ValueError and leaves the env unchanged.
+
+    ## Observation Space
+
+    ``Box((8,), float32)``:
+
+    | Num | Observation                              | Unit  |
+    |-----|------------------------------------------|-------|
+    | 0   | ``x``: horizontal COM position (perch at 0) | m  |
+    | 1   | ``z``: vertical COM position             | m     |
+    | 2   | ``th``: pitch, positive nose-up          | rad   |
+    | 3   | ``phi``: elevator angle relative to body | rad   |
+    | 4   | ``dx``                                   | m/s   |
+    | 5   | ``dz``                                   | m/s   |
+    | 6   | ``dth``                                  | rad/s |
+    | 7   | time to go                               | s     |
+
+    ``info["state"]`` holds the float64 state and ``info["time_to_go"]`` the time to go.
+
+    ## Rewards
+
+    ``-dt * 100 u^2`` per step (the running cost at the start of the period, the transcription's left-point rule),
+    plus ``-(x - x_d)' diag(10, 10, 1, 10, 1, 1, 1) (x - x_d)`` on the step where the episode ends (also on a crash,
+    so crashing is never cheaper than arriving at the crash point): an episode's return is minus the trajectory cost.
+
+    ## Starting State
+
+    Uniform in X0: ``x in [-3.75, -3.25]``, ``z in [0, 0.3]``, ``dx in [6.5, 7.5]``, other states 0; time to go
+    0.8 s. ``reset(options={"state": x0, "time_to_go": tau})`` chooses a start inside the state bounds and any
+    ``tau`` in ``(0, 0.85]``.
+
+    ## Episode End
+
+    * Termination (crash): the state leaves the task's path bounds ``x in [-4, 1]``, ``z in [-1, 1]``,
+      ``th in [-pi/2, pi/2]``, ``phi in [-0.9473, 0.4463]`` (the elevator's mechanical range).
+    * Truncation: the time to go reaches 0 (32 steps of 25 ms from 0.8 s; the last step is shortened if ``tau`` is
+      not a multiple of ``dt``).
+
+    ## Arguments
+
+    ``gym.make("SeagulGlider-v0", dt=0.025, render_mode=None, task=None)``: control period (s), render mode
+    (``"rgb_array"`` headless, or ``"human"``), and optionally a custom glider Task.
+    """
+
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 40}  # noqa: RUF012 (Gymnasium convention)
+
+    def __init__(self, dt: float | None = None, render_mode: str | None = None, task: Task | None = None) -> None:
+        super().__init__(make_task("glider") if task is None else task, dt=dt, render_mode=render_mode)
+        self._trail: list[tuple[float, float]] = []
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
+        self._trail = []
+        return super().reset(seed=seed, options=options)
+
+    def _render_frame(self) -> np.ndarray:
+        # The flown path is kept only while rendering (no cost on the training hot path).
+        self._trail.append((float(self._x[0]), float(self._x[1])))
+        p = self.task.params
+        return glider_frame(
+            self._x,
+            p.l_h,
+            p.l_e,
+            (float(self.task.x_low[0]), float(self.task.x_high[0])),
+            (float(self.task.x_low[1]), float(self.task.x_high[1])),
+            trail=self._trail,
+            ttg_fraction=self._ttg_fraction(),
+        )
