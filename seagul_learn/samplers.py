@@ -1,0 +1,249 @@
+"""Where to solve next: the uniform baseline and the adversarial sampler (paper Alg. 1).
+
+Both samplers draw their starting states from one :class:`StartPool`: the uniform baseline's draws from X0 for a
+given seed. The uniform sampler solves them in order; the adversarial sampler starts its chains from a random
+subset of them (paper §6: "taken from a randomly selected subset of the samples used by the baseline").
+
+**Time to go.** Uniform draws and chain starts use the task's nominal ``tau`` (SPEC §3: uniform samples and
+validation use the nominal ``tau``; for the acrobot T0 is the single value 5 s anyway). The adversarial ascent
+moves ``tau`` inside T0 when T0 is an interval (``AdversarialOptions.ascend_tau``).
+
+**Ascent step (paper Eq. 6, SPEC §1).** For a solved iterate with value ``V`` and dual gradient ``dV/dx``
+(``dV/dtau``), and the network's ``Vhat`` and autograd ``dVhat/dx``, the gradient of ``1/2 (V - Vhat)^2`` is
+``g = (V - Vhat) (dV/dx - dVhat/dx)``. The ascent runs in box-normalised coordinates ``u = (x - low) / width``
+(coordinates whose X0 width is zero never move; ``tau`` is one more coordinate when it ascends), so
+``g_u = g * width``. Rule ``"pga"``: ``du = step_fraction * g_u / max_j |g_u_j|`` — the coordinate with the
+largest normalised gradient moves ``step_fraction`` of its box width and the others proportionally (the step size
+is independent of the scale of ``V``, which changes by orders of magnitude across tasks and training). Rule
+``"adam"``: an Adam update on ``u`` per chain with learning rate ``step_fraction`` (Adam normalises per coordinate).
+Projection onto X0 (x T0): ``"clip"`` (the paper's projection) or ``"reflect"`` (mirror the overshoot back into
+the box, so iterates do not pile up on the boundary). A chain stops after ``max_steps`` solves, when the projected
+step is below ``eps`` (max-norm, in box widths), or at its first failed solve (its earlier iterates are kept).
+
+**Improvements behind options** (for the benchmark): ``projection="reflect"``; ``uniform_fraction`` mixes a share of
+each round's solves as plain uniform draws from the same pool (the knots of those solves cover the rest of the
+function); ``optimizer="adam"``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Literal, Protocol
+
+import numpy as np
+
+from seagul_envs import Task
+from seagul_learn.dataset import SolveRecord
+from seagul_learn.solving import SolveRunner
+from seagul_learn.value_network import ValueNetwork
+
+
+@dataclass
+class StartPool:
+    """The uniform baseline's starting states for one seed, consumed in order (``position`` is resumable state)."""
+
+    starts: np.ndarray
+    """Start states, ``(n, nx)``."""
+    taus: np.ndarray
+    """Time to go of each start, ``(n,)``."""
+    order: np.ndarray
+    """Order in which a sampler consumes the pool (identity for uniform, a permutation for adversarial)."""
+    position: int = 0
+    """How many starts have been consumed."""
+
+    @classmethod
+    def uniform(cls, task: Task, n: int, rng: np.random.Generator, uniform_tau: bool = False) -> StartPool:
+        """``n`` uniform draws from X0 (and from T0 if ``uniform_tau``, else the nominal ``tau``)."""
+        starts = task.sample_x0(rng, n)
+        lo, hi = task.tau_range
+        taus = rng.uniform(lo, hi, size=n) if uniform_tau and hi > lo else np.full(n, task.tau_nominal)
+        return cls(starts, taus, np.arange(n))
+
+    def shuffled(self, rng: np.random.Generator) -> StartPool:
+        """The same starts, consumed in a random order (a random subset for whoever takes fewer than all)."""
+        return StartPool(self.starts, self.taus, rng.permutation(self.starts.shape[0]), 0)
+
+    def take(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The next ``n`` starts, their taus and their pool ids."""
+        if self.position + n > self.order.shape[0]:
+            raise RuntimeError(
+                f"start pool exhausted: {n} starts asked, {self.order.shape[0] - self.position} left "
+                "(the pool must hold at least the budget)"
+            )
+        ids = self.order[self.position : self.position + n]
+        self.position += n
+        return self.starts[ids].copy(), self.taus[ids].copy(), ids.copy()
+
+
+class Sampler(Protocol):
+    """Chooses and solves ``num_solves`` new problems given the current network (one round of Alg. 2)."""
+
+    name: str
+
+    def sample(self, num_solves: int, network: ValueNetwork, runner: SolveRunner) -> list[SolveRecord]: ...
+
+
+class UniformSampler:
+    """The baseline: solve the pool's starts in order (uniform over X0, nominal ``tau``)."""
+
+    name = "uniform"
+
+    def __init__(self, task: Task, pool: StartPool) -> None:
+        self.task = task
+        self.pool = pool
+
+    def sample(self, num_solves: int, network: ValueNetwork, runner: SolveRunner) -> list[SolveRecord]:
+        """Exactly ``num_solves`` solves (failures included)."""
+        starts, taus, _ = self.pool.take(num_solves)
+        return runner.solve(starts, taus, self.name)
+
+
+@dataclass(frozen=True)
+class AdversarialOptions:
+    """Settings of the adversarial sampler (see the module docstring for the exact rules)."""
+
+    max_steps: int = 5
+    """Solves per chain at most (the start counts as one)."""
+    step_fraction: float = 0.1
+    """Largest move per ascent step, as a fraction of the X0 (T0) box width (Adam: its learning rate)."""
+    eps: float = 1e-3
+    """Stop a chain when the projected step is below this (max-norm, in box widths)."""
+    optimizer: Literal["pga", "adam"] = "pga"
+    """Normalised projected gradient ascent (paper) or Adam on the box-normalised start."""
+    projection: Literal["clip", "reflect"] = "clip"
+    """How an iterate leaving X0 is brought back."""
+    uniform_fraction: float = 0.0
+    """Share of each round's solves spent on plain uniform draws (0 = pure Alg. 1)."""
+    ascend_tau: bool = True
+    """Also ascend in ``tau`` when T0 is an interval."""
+    adam_betas: tuple[float, float] = field(default=(0.9, 0.999))
+    """Adam's moment decay rates (``optimizer="adam"``)."""
+
+    def __post_init__(self) -> None:
+        if self.max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
+        if not self.step_fraction > 0:
+            raise ValueError(f"step_fraction must be > 0, got {self.step_fraction}")
+        if self.eps < 0:
+            raise ValueError(f"eps must be >= 0, got {self.eps}")
+        if self.optimizer not in ("pga", "adam"):
+            raise ValueError(f"optimizer must be 'pga' or 'adam', got {self.optimizer!r}")
+        if self.projection not in ("clip", "reflect"):
+            raise ValueError(f"projection must be 'clip' or 'reflect', got {self.projection!r}")
+        if not 0.0 <= self.uniform_fraction <= 1.0:
+            raise ValueError(f"uniform_fraction must be in [0, 1], got {self.uniform_fraction}")
+
+
+@dataclass
+class _Chain:
+    chain_id: int
+    u: np.ndarray
+    """Box-normalised free coordinates (x, then tau if it ascends)."""
+    step: int = 0
+    adam_m: np.ndarray | None = None
+    adam_v: np.ndarray | None = None
+
+
+class AdversarialSampler:
+    """Paper Alg. 1: chains of projected gradient ascent on ``1/2 (V - Vhat)^2``; every iterate is a solve."""
+
+    name = "adversarial"
+
+    def __init__(self, task: Task, pool: StartPool, options: AdversarialOptions | None = None) -> None:
+        self.task = task
+        self.pool = pool
+        self.options = options or AdversarialOptions()
+        lo, hi = task.tau_range
+        self.ascend_tau = self.options.ascend_tau and hi > lo
+        low = np.append(task.x0_low, lo) if self.ascend_tau else task.x0_low.copy()
+        high = np.append(task.x0_high, hi) if self.ascend_tau else task.x0_high.copy()
+        self._low, self._width = low, high - low
+        self._free = self._width > 0
+        """Coordinates that may move (zero-width X0 coordinates are fixed)."""
+
+    # ------------------------------------------------------------ coordinates
+    def _to_u(self, x: np.ndarray, tau: float) -> np.ndarray:
+        z = np.append(x, tau) if self.ascend_tau else np.asarray(x, dtype=np.float64)
+        return np.where(self._free, (z - self._low) / np.where(self._free, self._width, 1.0), 0.0)
+
+    def _from_u(self, u: np.ndarray, x_template: np.ndarray, tau: float) -> tuple[np.ndarray, float]:
+        z = np.where(self._free, self._low + u * self._width, np.append(x_template, tau)[: u.size])
+        if self.ascend_tau:
+            return z[:-1], float(z[-1])
+        return z, float(tau)
+
+    def _project(self, u: np.ndarray) -> np.ndarray:
+        if self.options.projection == "reflect":
+            u = np.where(u > 1.0, 2.0 - u, u)
+            u = np.where(u < 0.0, -u, u)
+        return np.clip(u, 0.0, 1.0)
+
+    # ------------------------------------------------------------------ steps
+    def loss_gradient(self, record: SolveRecord, network: ValueNetwork) -> tuple[float, np.ndarray]:
+        """``1/2 (V - Vhat)^2`` at the record's start and its gradient in box-normalised coordinates."""
+        vhat, dvhat_dx, dvhat_dtau = network.value_and_grad(record.x_init, record.tau)
+        err = record.value - float(vhat)
+        g = err * (record.grad_x - dvhat_dx)
+        if self.ascend_tau:
+            g = np.append(g, err * (record.grad_tau - float(dvhat_dtau)))
+        return 0.5 * err**2, np.where(self._free, g * self._width, 0.0)
+
+    def ascent_step(self, chain: _Chain, g_u: np.ndarray) -> np.ndarray:
+        """The next (projected) box-normalised iterate of ``chain`` given the loss gradient ``g_u``."""
+        opts = self.options
+        if not np.all(np.isfinite(g_u)):
+            return chain.u.copy()  # no usable gradient: the chain stops (zero step)
+        if opts.optimizer == "adam":
+            b1, b2 = opts.adam_betas
+            if chain.adam_m is None or chain.adam_v is None:
+                chain.adam_m, chain.adam_v = np.zeros_like(g_u), np.zeros_like(g_u)
+            t = chain.step + 1
+            chain.adam_m = b1 * chain.adam_m + (1 - b1) * g_u
+            chain.adam_v = b2 * chain.adam_v + (1 - b2) * g_u**2
+            m_hat, v_hat = chain.adam_m / (1 - b1**t), chain.adam_v / (1 - b2**t)
+            du = opts.step_fraction * m_hat / (np.sqrt(v_hat) + 1e-12)
+        else:
+            scale = float(np.max(np.abs(g_u))) if g_u.size else 0.0
+            du = opts.step_fraction * g_u / scale if scale > 0 else np.zeros_like(g_u)
+        return self._project(chain.u + np.where(self._free, du, 0.0))
+
+    # --------------------------------------------------------------- sampling
+    def sample(self, num_solves: int, network: ValueNetwork, runner: SolveRunner) -> list[SolveRecord]:
+        """Exactly ``num_solves`` solves: chains (and, if configured, uniform draws) until the budget is spent."""
+        opts = self.options
+        records: list[SolveRecord] = []
+        n_uniform = round(opts.uniform_fraction * num_solves)
+        if n_uniform:
+            starts, taus, _ = self.pool.take(n_uniform)
+            records += runner.solve(starts, taus, "uniform-mix")
+        remaining = num_solves - n_uniform
+        while remaining > 0:
+            n_chains = math.ceil(remaining / opts.max_steps)
+            starts, taus, ids = self.pool.take(n_chains)
+            chains = [_Chain(int(i), self._to_u(x, t)) for x, t, i in zip(starts, taus, ids, strict=True)]
+            xs = {c.chain_id: (x, float(t)) for c, x, t in zip(chains, starts, taus, strict=True)}
+            active = chains
+            while active and remaining > 0:
+                batch = active[:remaining]
+                batch_x = np.array([xs[c.chain_id][0] for c in batch])
+                batch_t = np.array([xs[c.chain_id][1] for c in batch])
+                solved = runner.solve(
+                    batch_x, batch_t, self.name, chains=[c.chain_id for c in batch], steps=[c.step for c in batch]
+                )
+                records += solved
+                remaining -= len(batch)
+                next_active: list[_Chain] = []
+                for chain, rec in zip(batch, solved, strict=True):
+                    if not rec.success or chain.step + 1 >= opts.max_steps:
+                        continue  # a failed solve ends its chain; earlier iterates stay
+                    _, g_u = self.loss_gradient(rec, network)
+                    u_new = self.ascent_step(chain, g_u)
+                    if float(np.max(np.abs(u_new - chain.u), initial=0.0)) < max(opts.eps, 1e-15):
+                        continue
+                    chain.u = u_new
+                    chain.step += 1
+                    xs[chain.chain_id] = self._from_u(u_new, rec.x_init, rec.tau)
+                    next_active.append(chain)
+                active = next_active
+        return records
