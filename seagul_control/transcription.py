@@ -1,10 +1,10 @@
 """The one NLP builder: direct multiple-shooting transcription of paper Eq. 1 (full horizon) and Eq. 3 (MPC).
 
 Decision variables are ordered stage by stage, ``(x_k, u_k[, h_k])`` for ``k = 0..n-1`` then ``x_n``, and so are the
-constraints (stage 0: ``x_0 - x_init = 0``; stage k: the defect ``F(x_k, u_k, h_k) - x_{k+1} = 0``; then the
-time constraint), so that the structure-exploiting ``fatrop`` solver can detect the optimal-control structure;
-IPOPT solves the same NLP. ``x_init``, ``tau`` and the terminal-cost parameters ``theta`` are NLP *parameters*:
-a solver is built once and reused for every start, time to go and value network.
+constraints (stage 0: ``x_0 - x_init = 0``; stage k: the defect ``x_{k+1} - F(x_k, u_k, h_k) = 0``, the form
+fatrop requires; then the time constraint), so that the structure-exploiting ``fatrop`` solver can detect the
+optimal-control structure; IPOPT solves the same NLP. ``x_init``, ``tau`` and the terminal-cost parameters
+``theta`` are NLP *parameters*: a solver is built once and reused for every start, time to go and value network.
 
 Time: with ``free_time`` the steps ``h_k`` are decision variables in ``step_bounds`` and the elapsed time is the sum
 of the steps; ``time_mode`` says how the horizon meets ``tau``: ``"equal"`` (``sum(h) = tau``, the full-horizon
@@ -196,7 +196,8 @@ class Transcription:
             lo = np.maximum(task.x_low, task.x_final_low) if (last and final_box) else task.x_low
             hi = np.minimum(task.x_high, task.x_final_high) if (last and final_box) else task.x_high
             self._x_idx.append(add_var(x_next, lo, hi))
-            self._defect_rows.append(add_con(F(x_k, u_k, h_k) - x_next, 0.0, 0.0))
+            # fatrop's structure detection requires gap-closing rows written as x_{k+1} - F(x_k, u_k).
+            self._defect_rows.append(add_con(x_next - F(x_k, u_k, h_k), 0.0, 0.0))
             x_k = x_next
         if self.free_time and time_mode == "equal":
             self._time_row = int(add_con(elapsed - tau, 0.0, 0.0)[0])
@@ -305,7 +306,8 @@ class Transcription:
             controls=controls,
             steps=steps,
             param_sensitivity=-np.asarray(out["lam_p"]).ravel(),
-            defect_multipliers=np.stack([lam_g_out[rows] for rows in self._defect_rows]),
+            # Negated: the NLP rows are x_{k+1} - F, the documented convention is F - x_{k+1}.
+            defect_multipliers=np.stack([-lam_g_out[rows] for rows in self._defect_rows]),
             iterations=int(stats.get("iter_count", -1)),
             solve_time=elapsed,
             primal=w,
