@@ -11,8 +11,11 @@ Conventions shared by all of them:
   trajectory flown. Charging ``l_f`` at a crash too keeps a crash from being cheaper than arriving at that same place.
 * The episode has ``ceil(tau / dt)`` steps, counted with an integer (no float accumulation); when ``tau`` is not a
   multiple of ``dt`` the last step is shorter so the time to go reaches exactly 0.
-* Actions are clipped to the Box (as Gymnasium's continuous envs do); a NaN/inf or wrongly shaped action raises a
-  ValueError before anything changes.
+* Actions are clipped to the Box (as Gymnasium's continuous envs do), then to any state-dependent limit of the env
+  (the glider's elevator stops); a NaN/inf or wrongly shaped action raises a ValueError before anything changes.
+  The reward charges the input actually applied.
+* ``terminated`` when the state leaves the task's bounds ``[x_low, x_high]`` (with a 1e-8 rounding slack) or stops
+  being finite.
 * Stepping after the episode ended warns once (as Gymnasium's classic-control envs do) and returns the final
   observation again with reward 0, so the episode's return stays minus its cost.
 """
@@ -35,6 +38,7 @@ _RESET_OPTION_KEYS = frozenset({"state", "time_to_go"})
 # Observation bounds of the state entries: Gymnasium's own convention (CartPole) for unbounded coordinates.
 # Infinite bounds make `check_env` warn, and the task bounds cannot serve: a crash step observes a state past them.
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
+_BOUND_SLACK = 1e-8
 
 
 class BufferedFunction:
@@ -104,6 +108,10 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
         self._u_high = task.u_high.astype(np.float64)
         self._x_low = task.x_low.astype(np.float64)
         self._x_high = task.x_high.astype(np.float64)
+        # Rounding slack so that a state exactly on a bound (e.g. the glider's elevator at its stop after RK4
+        # substeps, or an optimizer's solution within its tolerance) does not end the episode.
+        self._x_low_tol = self._x_low - _BOUND_SLACK
+        self._x_high_tol = self._x_high + _BOUND_SLACK
         self._bounded = bool(np.any(np.isfinite(self._x_low)) or np.any(np.isfinite(self._x_high)))
 
         # Episode bookkeeping; a fresh env must be reset before stepping (Gymnasium's OrderEnforcing checks it).
@@ -134,6 +142,10 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def _restore_runtime(self) -> None:
         """(Re)build handles that cannot be pickled (numeric kernels, simulators)."""
+
+    def _limit_action(self, u: np.ndarray, h: float) -> np.ndarray:
+        """State-dependent limits on the (already box-clipped) input over a step of ``h``; default none."""
+        return u
 
     # ------------------------------------------------------------- properties
     @property
@@ -173,7 +185,7 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
         # Validate everything before touching the episode, so a bad call leaves the env as it was.
         if options.get("state") is not None:
             x0 = self.task.check_state(options["state"], "reset state")
-            if np.any(x0 < self._x_low) or np.any(x0 > self._x_high):
+            if np.any(x0 < self._x_low_tol) or np.any(x0 > self._x_high_tol):
                 raise ValueError(
                     f"{self.task.name}: reset state {x0.tolist()} is outside the state bounds "
                     f"[{self._x_low.tolist()}, {self._x_high.tolist()}]"
@@ -217,6 +229,7 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
         u = self._check_action(action)
         k = self._k
         h = self.dt if k < self._n_steps - 1 else self._last_h
+        u = self._limit_action(u, h)
         x_next, stage = self._advance(u, h)
         self._x = x_next
         self._k = k + 1
@@ -225,7 +238,7 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
         self._truncated = self._k >= self._n_steps
         if self._bounded or not np.isfinite(x_next).all():
             self._terminated = not (
-                np.isfinite(x_next).all() and np.all(x_next >= self._x_low) and np.all(x_next <= self._x_high)
+                np.isfinite(x_next).all() and np.all(x_next >= self._x_low_tol) and np.all(x_next <= self._x_high_tol)
             )
         if self._terminated or self._truncated:
             reward -= float(self.task.terminal_cost(x_next))

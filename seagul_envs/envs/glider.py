@@ -23,8 +23,10 @@ class GliderEnv(TaskSimulatorEnv):
 
     ## Action Space
 
-    ``Box(-13, 13, (1,), float32)``: elevator rate ``dphi`` in rad/s. Out-of-range actions are clipped; a NaN/inf or
-    wrongly shaped action raises ValueError and leaves the env unchanged.
+    ``Box(-13, 13, (1,), float32)``: elevator rate ``dphi`` in rad/s. Out-of-range actions are clipped, and so is a
+    rate that would drive the elevator past its range within the step (a mechanical stop: ``phi`` stays in
+    ``[-0.9473, 0.4463]``); the reward charges the rate applied. A NaN/inf or wrongly shaped action raises
+    ValueError and leaves the env unchanged.
 
     ## Observation Space
 
@@ -58,7 +60,7 @@ class GliderEnv(TaskSimulatorEnv):
     ## Episode End
 
     * Termination (crash): the state leaves the task's path bounds ``x in [-4, 1]``, ``z in [-1, 1]``,
-      ``th in [-pi/2, pi/2]``, ``phi in [-0.9473, 0.4463]`` (the elevator's mechanical range).
+      ``th in [-pi/2, pi/2]`` (``phi`` is kept inside its range by the action limit above).
     * Truncation: the time to go reaches 0 (32 steps of 25 ms from 0.8 s; the last step is shortened if ``tau`` is
       not a multiple of ``dt``).
 
@@ -77,6 +79,15 @@ class GliderEnv(TaskSimulatorEnv):
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
         self._trail = []
         return super().reset(seed=seed, options=options)
+
+    def _limit_action(self, u: np.ndarray, h: float) -> np.ndarray:
+        # The elevator's range acts as a mechanical stop: dphi = u exactly, so clipping u to the travel left over
+        # this step keeps phi inside [phi_min, phi_max] without touching the model. Trajectories that respect the
+        # bounds (all optimizer solutions) are unchanged; random exploration no longer "crashes" on the elevator.
+        phi = self._x[3]
+        lo = max(self._u_low[0], (self._x_low[3] - phi) / h)
+        hi = min(self._u_high[0], (self._x_high[3] - phi) / h)
+        return np.array([min(max(u[0], lo), hi)])
 
     def _render_frame(self) -> np.ndarray:
         # The flown path is kept only while rendering (no cost on the training hot path).
