@@ -211,10 +211,12 @@ class Dataset:
     def __contains__(self, index: object) -> bool:
         return isinstance(index, int | np.integer) and self.record_path(int(index)).is_file()
 
-    def write(self, record: SolveRecord) -> None:
-        """Store ``record`` atomically; refuses to overwrite a different record with the same index."""
+    def write(self, record: SolveRecord, exist_ok: bool = False) -> None:
+        """Store ``record`` atomically; an existing index is an error unless ``exist_ok`` (then it is kept)."""
         path = self.record_path(record.index)
         if path.is_file():
+            if exist_ok:
+                return
             raise DatasetError(f"record {record.index} already exists in {str(self.path)!r}")
         self.records_dir.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=self.records_dir)

@@ -1,0 +1,641 @@
+"""SEAGuL training (paper Alg. 2) for both samplers, with validation, metrics, plots and exact resume.
+
+One run, for a :class:`TrainConfig`:
+
+1. **Validation set** (SPEC §2/§3), solved once and cached on disk under ``cache_dir`` keyed by task and solver
+   settings: acrobot a 10 x 10 grid over ``(th1, th2)`` at zero velocity plus 100 uniform draws from X0; glider a
+   6 x 6 x 6 grid over ``(x, z, dx)`` (other states 0) plus 250 uniform draws; all at the nominal ``tau``. The random
+   part uses a fixed seed, so every training seed is validated on the same set.
+2. **Pretraining** (paper §6): ``pretrain_solves`` uniform solves (a stream that depends only on the seed) set the
+   network's standardisation (all their knots) and train it for ``pretrain_steps`` steps. The result depends on
+   neither the sampler nor the Sobolev weight, so every variant of a seed starts from IDENTICAL parameters. The
+   pretraining solves stay in the buffer of every variant and are not counted in ``budget``.
+3. **Rounds**: each round the sampler spends ``min(solves_per_round, budget left)`` solves (the uniform baseline's
+   starts for this seed; adversarial chains start from a random subset of them), every knot of each successful
+   solve joins the buffer, then ``train_steps_per_round`` Adam steps follow. Failed solves are stored, counted and
+   never trained on.
+
+**Minibatches favour the newest samples** (paper §5): each minibatch of ``batch_size`` draws
+``round(newest_fraction * batch_size)`` samples uniformly from the knots added this round and the rest uniformly from
+the whole buffer (with replacement), so the newest samples are seen about ``1 + newest_fraction * buffer/new``
+times as often as the others.
+
+**Loss.** In the network's standardised units (``y = (V - out_mean) / out_std``, ``z = (x - in_mean) / in_std``)::
+
+    loss = mean_i (y_i - yhat_i)^2 + w * mean_i mean_j ((dV/dx_ij - dVhat/dx_ij) * in_std_j / out_std)^2
+
+i.e. the Sobolev term compares ``dy/dz`` (the gradient the network actually fits), averaged over coordinates, so
+``w`` weighs one standardised gradient coordinate like the standardised value; knots whose gradient label is not
+finite only enter the value term. ``w = 0`` is plain MSE.
+
+**Metrics** (``metrics.json`` / ``metrics.csv``): after pretraining, after every round (and every ``eval_every``
+training steps if set): ``solves`` (budget solves so far), ``train_steps`` (after pretraining), ``mse_initial`` (the
+validation starts at their full ``tau``), ``mse_all_knots`` (every per-knot label of the successful validation
+solves), ``failures`` (failed budget solves so far). MSEs are in the task's cost units squared.
+
+**Determinism and resume.** Every random stream is a fresh ``np.random.default_rng([seed, stream, round])``; torch
+runs in float64 with a fixed thread count and draws nothing from its global RNG after the seeded initialisation.
+After each round a checkpoint (network, Adam state, start-pool position, next solve index, metrics) is written
+atomically. ``train(config, out, resume=True)`` restores it, re-runs the interrupted round from its start, and reuses
+the records that round had already stored (their requests are checked bit for bit), so a run killed at any moment
+and resumed ends with the same dataset and the same weights as an uninterrupted one, whatever ``workers`` is.
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import itertools
+import json
+import math
+import os
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+from tqdm.auto import tqdm
+
+from seagul_envs import Task, available_tasks, make_task
+from seagul_learn.dataset import (
+    Dataset,
+    SolveRecord,
+    TrainingArrays,
+    atomic_write_text,
+    count_failures,
+    training_arrays,
+)
+from seagul_learn.samplers import AdversarialOptions, AdversarialSampler, Sampler, StartPool, UniformSampler
+from seagul_learn.solving import BatchSolver, SolveRunner, solver_key, trajopt_batch_solver
+from seagul_learn.value_network import ValueNetwork
+
+SAMPLERS = ("uniform", "adversarial")
+CHECKPOINT_FORMAT = "seagul-train-checkpoint"
+
+# Random streams: one id each, combined with the seed (and the round) into an independent generator.
+_STREAM_BASELINE_STARTS = 1
+_STREAM_ADVERSARIAL_ORDER = 2
+_STREAM_PRETRAIN_STARTS = 3
+_STREAM_PRETRAIN_BATCHES = 4
+_STREAM_ROUND_BATCHES = 5
+_VALIDATION_SEED = 20210718  # one validation set for all training seeds
+
+
+@dataclass
+class TrainConfig:
+    """Everything that defines a training run (CleanRL style: one place, one line per field)."""
+
+    task: str = "acrobot"
+    """Task name (``seagul_envs.available_tasks()``)."""
+    sampler: str = "adversarial"
+    """``"uniform"`` (baseline) or ``"adversarial"`` (paper Alg. 1)."""
+    budget: int = 100
+    """Solves spent by the sampler (pretraining solves not included)."""
+    solves_per_round: int = 10
+    """New solves between two training phases (paper: 10)."""
+    train_steps_per_round: int = 500
+    """Adam steps after each round of solves (paper: 500)."""
+    batch_size: int = 128
+    """Knot samples per minibatch."""
+    newest_fraction: float = 0.5
+    """Share of each minibatch drawn from the knots added in the current round."""
+    lr: float = 1e-3
+    """Adam learning rate."""
+    sobolev_weight: float = 0.0
+    """Weight ``w`` of the gradient-matching term (0 = plain MSE)."""
+    hidden: tuple[int, ...] = (32,)
+    """Hidden-layer widths of the tanh network."""
+    pretrain_solves: int = 10
+    """Uniform solves of the shared pretraining set (also the standardisation statistics)."""
+    pretrain_steps: int = 100
+    """Adam steps on the pretraining set."""
+    seed: int = 0
+    """Seed of every random stream (starts, initial weights, minibatches)."""
+    adv_max_steps: int = 5
+    """Adversarial: solves per chain at most."""
+    adv_step_fraction: float = 0.1
+    """Adversarial: largest move per ascent step as a fraction of the X0 box width."""
+    adv_eps: float = 1e-3
+    """Adversarial: stop a chain when its step is below this (in box widths)."""
+    adv_optimizer: str = "pga"
+    """Adversarial: ``"pga"`` (normalised projected gradient ascent) or ``"adam"``."""
+    adv_projection: str = "clip"
+    """Adversarial: ``"clip"`` or ``"reflect"`` at the X0 boundary."""
+    adv_uniform_fraction: float = 0.0
+    """Adversarial: share of each round's solves spent on uniform draws."""
+    adv_ascend_tau: bool = True
+    """Adversarial: ascend in ``tau`` too when T0 is an interval."""
+    uniform_tau: bool = False
+    """Draw uniform starts' ``tau`` from T0 instead of using the nominal value."""
+    eval_every: int = 0
+    """Also evaluate every this many training steps inside rounds (0 = after each round only)."""
+    validate: bool = True
+    """Solve (or load) the validation set and record validation metrics."""
+    torch_threads: int = 1
+    """Torch intra-op threads during training (fixed so results never depend on the machine's core count)."""
+    workers: int = 1
+    """Parallel solver processes (results do not depend on it)."""
+    backend: str = "local"
+    """``"local"`` (joblib processes) or ``"ray"``."""
+    solver_options: dict[str, Any] | None = None
+    """Options of the trajectory optimizer (part of the validation-cache key)."""
+    cache_dir: str | None = None
+    """Where solved validation sets are cached (default ``$SEAGUL_CACHE_DIR`` or ``~/.cache/seagul``)."""
+    progress: bool = True
+    """Show progress bars."""
+
+    # Fields that may change between an interrupted run and its resumption (they cannot change the results).
+    RUNTIME_FIELDS = ("workers", "backend", "cache_dir", "progress")
+
+    def __post_init__(self) -> None:
+        self.hidden = tuple(int(h) for h in self.hidden)
+        self.validate_values()
+
+    def validate_values(self) -> None:
+        """Raise a ValueError naming the first bad field and its accepted range."""
+        if self.task not in available_tasks():
+            raise ValueError(f"unknown task {self.task!r}; available tasks: {available_tasks()}")
+        if self.sampler not in SAMPLERS:
+            raise ValueError(f"unknown sampler {self.sampler!r}; choose one of {list(SAMPLERS)}")
+        for name in ("budget", "solves_per_round", "batch_size", "pretrain_solves", "workers", "torch_threads"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("train_steps_per_round", "pretrain_steps", "eval_every"):
+            if int(getattr(self, name)) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if not 0.0 <= self.newest_fraction <= 1.0:
+            raise ValueError(f"newest_fraction must be in [0, 1], got {self.newest_fraction}")
+        if not (self.lr > 0 and math.isfinite(self.lr)):
+            raise ValueError(f"lr must be a positive number, got {self.lr}")
+        if not (self.sobolev_weight >= 0 and math.isfinite(self.sobolev_weight)):
+            raise ValueError(f"sobolev_weight must be >= 0, got {self.sobolev_weight}")
+        if self.backend not in ("local", "ray"):
+            raise ValueError(f"unknown backend {self.backend!r}; choose 'local' or 'ray'")
+        if not self.hidden or any(h < 1 for h in self.hidden):
+            raise ValueError(f"hidden must be positive layer widths, got {self.hidden}")
+        self.adversarial_options()  # validates the adv_* fields
+
+    def adversarial_options(self) -> AdversarialOptions:
+        """The adversarial sampler's options from the ``adv_*`` fields."""
+        return AdversarialOptions(
+            max_steps=self.adv_max_steps,
+            step_fraction=self.adv_step_fraction,
+            eps=self.adv_eps,
+            optimizer=self.adv_optimizer,  # type: ignore[arg-type]
+            projection=self.adv_projection,  # type: ignore[arg-type]
+            uniform_fraction=self.adv_uniform_fraction,
+            ascend_tau=self.adv_ascend_tau,
+        )
+
+    @property
+    def num_rounds(self) -> int:
+        """Rounds of solves (the last one may be partial)."""
+        return math.ceil(self.budget / self.solves_per_round)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict of the fields."""
+        out = asdict(self)
+        out["hidden"] = list(self.hidden)
+        return out
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
+        """Inverse of :meth:`to_dict`; unknown keys are an error naming them."""
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"unknown TrainConfig fields {unknown}")
+        return cls(**data)
+
+    def result_fields(self) -> dict[str, Any]:
+        """The fields that determine the results (everything but the runtime ones)."""
+        return {k: v for k, v in self.to_dict().items() if k not in self.RUNTIME_FIELDS}
+
+
+# ----------------------------------------------------------------------------------------------- validation set
+@dataclass(frozen=True)
+class ValidationSpec:
+    """A validation set: a grid over some coordinates of X0 (others at their X0 centre) plus uniform draws."""
+
+    grid_coords: tuple[int, ...]
+    """State coordinates spanned by the grid."""
+    grid_points: int
+    """Points per grid coordinate (grid bounds are X0's)."""
+    num_random: int
+    """Uniform draws from X0 added to the grid."""
+
+    def starts(self, task: Task) -> np.ndarray:
+        """The start states (grid first, then the draws)."""
+        centre = 0.5 * (task.x0_low + task.x0_high)
+        axes = [np.linspace(task.x0_low[j], task.x0_high[j], self.grid_points) for j in self.grid_coords]
+        grid = np.tile(centre, (self.grid_points ** len(self.grid_coords), 1))
+        for row, point in enumerate(itertools.product(*axes)):
+            grid[row, list(self.grid_coords)] = point
+        draws = task.sample_x0(np.random.default_rng(_VALIDATION_SEED), self.num_random)
+        return np.vstack([grid, draws])
+
+
+VALIDATION_SPECS: dict[str, ValidationSpec] = {
+    # SPEC §2: 10 x 10 over (th1, th2) at zero velocity (X0's velocity centre is 0) + 100 uniform 4-D draws.
+    "acrobot": ValidationSpec(grid_coords=(0, 1), grid_points=10, num_random=100),
+    # SPEC §3: 6 x 6 x 6 over (x, z, dx), other states 0 + 250 uniform draws.
+    "glider": ValidationSpec(grid_coords=(0, 1, 4), grid_points=6, num_random=250),
+}
+
+
+def default_cache_dir() -> Path:
+    """``$SEAGUL_CACHE_DIR`` or ``~/.cache/seagul``."""
+    return Path(os.environ.get("SEAGUL_CACHE_DIR") or Path.home() / ".cache" / "seagul")
+
+
+def validation_dataset(
+    task: Task,
+    batch_solver: BatchSolver,
+    solver_name: str,
+    cache_dir: str | os.PathLike[str] | None = None,
+    chunk_size: int = 1,
+    progress: bool = False,
+    spec: ValidationSpec | None = None,
+) -> list[SolveRecord]:
+    """Solve (or load from the cache) the task's validation set; returns one record per validation start."""
+    spec = spec or VALIDATION_SPECS[task.name]
+    starts = spec.starts(task)
+    meta = {"solver": solver_name, "spec": asdict(spec), "tau": task.tau_nominal}
+    key = hashlib.sha256(json.dumps(meta, sort_keys=True).encode()).hexdigest()[:16]
+    root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
+    dataset = Dataset.open(root / f"validation-{task.name}-{key}", task.name, meta=meta)
+    have = set(dataset.indices())
+    todo = [i for i in range(starts.shape[0]) if i not in have]
+    bar = tqdm(total=starts.shape[0], initial=len(have), desc=f"validation set ({task.name})", disable=not progress)
+    for lo in range(0, len(todo), chunk_size):
+        chunk = todo[lo : lo + chunk_size]
+        results = batch_solver(starts[chunk], np.full(len(chunk), task.tau_nominal))
+        for i, result in zip(chunk, results, strict=True):
+            dataset.write(SolveRecord.from_result(result, i, "validation"), exist_ok=True)  # races are harmless
+        bar.update(len(chunk))
+    bar.close()
+    records = [dataset.read(i) for i in range(starts.shape[0])]
+    for i, rec in enumerate(records):
+        if not rec.same_request(starts[i], task.tau_nominal):
+            raise RuntimeError(f"validation cache {str(dataset.path)!r} holds another start at index {i}")
+    return records
+
+
+# ---------------------------------------------------------------------------------------------- training pieces
+@dataclass
+class Metric:
+    """One evaluation point."""
+
+    solves: int
+    train_steps: int
+    mse_initial: float
+    mse_all_knots: float
+    failures: int
+    buffer_solves: int
+    wall_time: float
+
+
+@dataclass
+class TrainResult:
+    """What :func:`train` returns (everything is also on disk in the run directory)."""
+
+    network: ValueNetwork
+    metrics: list[Metric]
+    out_dir: Path
+    num_solves: int
+    num_failures: int
+    dataset: Dataset = field(repr=False)
+
+
+def _rng(seed: int, stream: int, index: int = 0) -> np.random.Generator:
+    return np.random.default_rng([int(seed), int(stream), int(index)])
+
+
+def _as_tensors(arrays: TrainingArrays) -> dict[str, torch.Tensor]:
+    return {
+        "x": torch.tensor(arrays.x, dtype=torch.float64),
+        "tau": torch.tensor(arrays.tau, dtype=torch.float64),
+        "value": torch.tensor(arrays.value, dtype=torch.float64),
+        "grad_x": torch.tensor(np.nan_to_num(arrays.grad_x), dtype=torch.float64),
+        "grad_ok": torch.tensor(np.all(np.isfinite(arrays.grad_x), axis=1)),
+    }
+
+
+def training_loss(network: ValueNetwork, batch: dict[str, torch.Tensor], sobolev_weight: float) -> torch.Tensor:
+    """The standardised value MSE plus ``sobolev_weight`` times the standardised gradient MSE (module docstring)."""
+    target = (batch["value"] - network.out_mean) / network.out_std
+    if sobolev_weight == 0.0:
+        return torch.mean((network.forward_standardized(batch["x"], batch["tau"]) - target) ** 2)
+    x = batch["x"].clone().requires_grad_(True)
+    pred = network.forward_standardized(x, batch["tau"])
+    (dy_dx,) = torch.autograd.grad(pred.sum(), x, create_graph=True)
+    scale = network.in_std[: network.nx]
+    # dy/dz = dy/dx * in_std; the label's dy/dz = dV/dx * in_std / out_std
+    diff = dy_dx * scale - batch["grad_x"] * scale / network.out_std
+    mask = batch["grad_ok"].to(torch.float64)
+    grad_term = torch.sum(mask * torch.mean(diff**2, dim=1)) / torch.clamp(mask.sum(), min=1.0)
+    return torch.mean((pred - target) ** 2) + sobolev_weight * grad_term
+
+
+def _minibatch(
+    data: dict[str, torch.Tensor], newest: np.ndarray, batch_size: int, newest_fraction: float, rng: np.random.Generator
+) -> dict[str, torch.Tensor]:
+    n_total = data["value"].shape[0]
+    n_new = round(newest_fraction * batch_size) if newest.size else 0
+    idx = np.concatenate([rng.choice(newest, size=n_new), rng.integers(0, n_total, size=batch_size - n_new)])
+    index = torch.from_numpy(idx)
+    return {k: v[index] for k, v in data.items()}
+
+
+def evaluate(network: ValueNetwork, validation: TrainingArrays) -> tuple[float, float]:
+    """``(mse_initial, mse_all_knots)`` of ``network`` on per-knot validation arrays (NaN if empty)."""
+    if len(validation) == 0:
+        return float("nan"), float("nan")
+    pred = network.predict(validation.x, validation.tau)
+    err2 = (pred - validation.value) ** 2
+    init = validation.knot == 0
+    return float(np.mean(err2[init])) if init.any() else float("nan"), float(np.mean(err2))
+
+
+class _Trainer:
+    """Holds a run's mutable state between rounds (network, optimizer, buffer, metrics)."""
+
+    def __init__(self, config: TrainConfig, network: ValueNetwork, validation: TrainingArrays | None) -> None:
+        self.config = config
+        self.network = network
+        self.optimizer = torch.optim.Adam(network.parameters(), lr=config.lr)
+        self.validation = validation
+        self.metrics: list[Metric] = []
+        self.train_steps = 0
+        self.t0 = time.perf_counter()
+
+    def record_metric(self, solves: int, failures: int, buffer_solves: int) -> None:
+        mse_i, mse_a = evaluate(self.network, self.validation) if self.validation is not None else (np.nan, np.nan)
+        self.metrics.append(
+            Metric(solves, self.train_steps, mse_i, mse_a, failures, buffer_solves, time.perf_counter() - self.t0)
+        )
+
+    def train(
+        self,
+        buffer: TrainingArrays,
+        newest: np.ndarray,
+        steps: int,
+        rng: np.random.Generator,
+        count_steps: bool,
+        on_eval: Callable[[], None] | None = None,
+    ) -> None:
+        if len(buffer) == 0 or steps == 0:
+            return
+        data = _as_tensors(buffer)
+        fraction = self.config.newest_fraction
+        for _ in range(steps):
+            batch = _minibatch(data, newest, self.config.batch_size, fraction, rng)
+            self.optimizer.zero_grad(set_to_none=True)
+            loss = training_loss(self.network, batch, self.config.sobolev_weight)
+            loss.backward()
+            self.optimizer.step()
+            if count_steps:
+                self.train_steps += 1
+                if on_eval is not None and self.config.eval_every and self.train_steps % self.config.eval_every == 0:
+                    on_eval()
+
+
+def _concat(a: TrainingArrays, b: TrainingArrays) -> TrainingArrays:
+    return TrainingArrays(
+        np.concatenate([a.x, b.x]),
+        np.concatenate([a.tau, b.tau]),
+        np.concatenate([a.value, b.value]),
+        np.concatenate([a.grad_x, b.grad_x]),
+        np.concatenate([a.solve_index, b.solve_index]),
+        np.concatenate([a.knot, b.knot]),
+    )
+
+
+def _make_sampler(config: TrainConfig, task: Task) -> Sampler:
+    """The run's sampler over the uniform baseline's starts for this seed."""
+    pool = StartPool.uniform(task, config.budget, _rng(config.seed, _STREAM_BASELINE_STARTS), config.uniform_tau)
+    if config.sampler == "uniform":
+        return UniformSampler(task, pool)
+    return AdversarialSampler(
+        task, pool.shuffled(_rng(config.seed, _STREAM_ADVERSARIAL_ORDER)), config.adversarial_options()
+    )
+
+
+# --------------------------------------------------------------------------------------------------- the loop
+def train(
+    config: TrainConfig,
+    out_dir: str | os.PathLike[str],
+    resume: bool = False,
+    batch_solver: BatchSolver | None = None,
+    solver_name: str | None = None,
+) -> TrainResult:
+    """Run (or resume) SEAGuL training into ``out_dir``; see the module docstring.
+
+    ``batch_solver`` replaces the trajectory optimizer (tests inject a toy); ``solver_name`` then names it in the
+    validation-cache key. Outputs: ``config.json``, ``dataset/``, ``checkpoint.pt``, ``network.pt``,
+    ``metrics.json``, ``metrics.csv``, ``validation.png``.
+    """
+    config.validate_values()
+    out = Path(out_dir)
+    task = make_task(config.task)
+    if batch_solver is None:
+        batch_solver = trajopt_batch_solver(
+            config.task, workers=config.workers, backend=config.backend, solver_options=config.solver_options
+        )
+        solver_name = solver_key(config.solver_options)
+    solver_name = solver_name or "custom"
+    _prepare_run_dir(out, config, resume)
+
+    previous_threads = torch.get_num_threads()
+    torch.set_num_threads(config.torch_threads)
+    try:
+        return _train(config, out, task, batch_solver, solver_name)
+    finally:
+        torch.set_num_threads(previous_threads)
+
+
+def _prepare_run_dir(out: Path, config: TrainConfig, resume: bool) -> None:
+    config_path = out / "config.json"
+    if config_path.is_file():
+        if not resume:
+            raise FileExistsError(
+                f"run directory {str(out)!r} already holds a run; pass resume=True (--resume) or choose a new one"
+            )
+        try:
+            stored = TrainConfig.from_dict(json.loads(config_path.read_text())).result_fields()
+        except (ValueError, TypeError) as exc:
+            raise ValueError(f"cannot resume: {str(config_path)!r} is not a valid run config ({exc})") from exc
+        wanted = config.result_fields()
+        diff = sorted(k for k in wanted if json.dumps(wanted[k]) != json.dumps(stored.get(k)))
+        if diff:
+            details = ", ".join(f"{k}: stored {stored.get(k)!r} vs {wanted[k]!r}" for k in diff)
+            raise ValueError(f"cannot resume {str(out)!r} with a different configuration ({details})")
+    elif out.exists() and any(p.name != ".gitkeep" for p in out.iterdir()):
+        raise FileExistsError(f"run directory {str(out)!r} exists and is not a seagul run; choose a new one")
+    out.mkdir(parents=True, exist_ok=True)
+    atomic_write_text(config_path, json.dumps(config.to_dict(), indent=2, sort_keys=True))
+
+
+def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver, solver_name: str) -> TrainResult:
+    chunk = max(1, config.workers)
+    validation: TrainingArrays | None = None
+    if config.validate:
+        val_records = validation_dataset(
+            task, batch_solver, solver_name, config.cache_dir or default_cache_dir(), chunk, config.progress
+        )
+        validation = training_arrays(val_records, task.nx)
+        if len(validation) == 0:
+            raise RuntimeError(f"no validation solve of {task.name} succeeded; check the solver settings")
+
+    dataset = Dataset.open(out / "dataset", task.name, meta={"solver": solver_name, "seed": config.seed})
+    runner = SolveRunner(batch_solver, dataset, next_index=0, chunk_size=chunk)
+    sampler = _make_sampler(config, task)
+    network = ValueNetwork(task.nx, config.hidden, task_name=task.name, seed=config.seed)
+    trainer = _Trainer(config, network, validation)
+    checkpoint_path = out / "checkpoint.pt"
+
+    # Pretraining: identical for every sampler and Sobolev weight of this seed (only the value loss).
+    pool = StartPool.uniform(task, config.pretrain_solves, _rng(config.seed, _STREAM_PRETRAIN_STARTS))
+    pre_records = runner.solve(pool.starts, pool.taus, "pretrain")
+    buffer = training_arrays(pre_records, task.nx)
+    if len(buffer) == 0:
+        raise RuntimeError(f"all {config.pretrain_solves} pretraining solves of {task.name} failed")
+    budget_records: list[SolveRecord] = []
+    rounds_done = 0
+
+    if checkpoint_path.is_file():
+        state = _load_checkpoint(checkpoint_path)
+        network.load_state_dict(state["network"])
+        trainer.optimizer.load_state_dict(state["optimizer"])
+        trainer.train_steps = int(state["train_steps"])
+        trainer.metrics = [Metric(**m) for m in state["metrics"]]
+        rounds_done = int(state["rounds_done"])
+        sampler.pool.position = int(state["pool_position"])
+        runner.next_index = int(state["next_index"])
+        budget_records = [dataset.read(i) for i in range(config.pretrain_solves, runner.next_index)]
+        new = training_arrays(budget_records, task.nx)
+        buffer = _concat(buffer, new)
+    else:
+        network.set_normalization(buffer.x, buffer.tau, buffer.value)
+        pre_cfg = TrainConfig(**{**config.to_dict(), "sobolev_weight": 0.0, "newest_fraction": 0.0})
+        _Trainer(pre_cfg, network, None).train(
+            buffer,
+            np.zeros(0, dtype=np.int64),
+            config.pretrain_steps,
+            _rng(config.seed, _STREAM_PRETRAIN_BATCHES),
+            count_steps=False,
+        )
+        trainer.optimizer = torch.optim.Adam(network.parameters(), lr=config.lr)  # fresh Adam for the rounds
+        trainer.record_metric(0, 0, config.pretrain_solves)
+        _save_checkpoint(checkpoint_path, trainer, 0, sampler.pool.position, runner.next_index)
+
+    bar = tqdm(
+        total=config.num_rounds,
+        initial=rounds_done,
+        desc=f"{config.sampler} {task.name}",
+        unit="round",
+        disable=not config.progress,
+    )
+    for round_index in range(rounds_done, config.num_rounds):
+        n_new = min(config.solves_per_round, config.budget - round_index * config.solves_per_round)
+        records = sampler.sample(n_new, network, runner)
+        budget_records += records
+        new = training_arrays(records, task.nx)
+        newest = np.arange(len(buffer), len(buffer) + len(new))
+        buffer = _concat(buffer, new)
+        solves, failures = len(budget_records), count_failures(budget_records)
+        buffer_solves = config.pretrain_solves + solves
+        trainer.train(
+            buffer,
+            newest,
+            config.train_steps_per_round,
+            _rng(config.seed, _STREAM_ROUND_BATCHES, round_index),
+            count_steps=True,
+            on_eval=lambda s=solves, f=failures, b=buffer_solves: trainer.record_metric(s, f, b),
+        )
+        if (
+            not trainer.metrics
+            or trainer.metrics[-1].train_steps != trainer.train_steps
+            or (trainer.metrics[-1].solves != solves)
+        ):
+            trainer.record_metric(solves, failures, buffer_solves)
+        _save_checkpoint(checkpoint_path, trainer, round_index + 1, sampler.pool.position, runner.next_index)
+        bar.set_postfix(mse_initial=f"{trainer.metrics[-1].mse_initial:.3g}", failures=failures)
+        bar.update(1)
+    bar.close()
+
+    network.save(out / "network.pt")
+    _write_metrics(out, trainer.metrics, config)
+    return TrainResult(network, trainer.metrics, out, len(budget_records), count_failures(budget_records), dataset)
+
+
+# ------------------------------------------------------------------------------------------------- checkpoints
+def _save_checkpoint(path: Path, trainer: _Trainer, rounds_done: int, pool_position: int, next_index: int) -> None:
+    payload = {
+        "format": CHECKPOINT_FORMAT,
+        "rounds_done": rounds_done,
+        "network": trainer.network.state_dict(),
+        "optimizer": trainer.optimizer.state_dict(),
+        "train_steps": trainer.train_steps,
+        "metrics": [asdict(m) for m in trainer.metrics],
+        "pool_position": pool_position,
+        "next_index": next_index,
+    }
+    buf = io.BytesIO()
+    torch.save(payload, buf)
+    tmp = path.with_name(f".tmp-{path.name}.{os.getpid()}")
+    with open(tmp, "wb") as f:
+        f.write(buf.getvalue())
+        f.flush()
+        os.fsync(f.fileno())
+    os.replace(tmp, path)
+
+
+def _load_checkpoint(path: Path) -> dict[str, Any]:
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as exc:
+        raise ValueError(f"checkpoint {str(path)!r} is unreadable or corrupt ({type(exc).__name__}: {exc})") from exc
+    if not isinstance(state, dict) or state.get("format") != CHECKPOINT_FORMAT:
+        raise ValueError(f"{str(path)!r} is not a seagul training checkpoint")
+    return state
+
+
+# ----------------------------------------------------------------------------------------------------- outputs
+def _write_metrics(out: Path, metrics: list[Metric], config: TrainConfig) -> None:
+    rows = [asdict(m) for m in metrics]
+    payload = {"config": config.to_dict(), "metrics": rows}
+    atomic_write_text(out / "metrics.json", json.dumps(payload, indent=2, allow_nan=True))
+    text = io.StringIO()
+    writer = csv.DictWriter(text, fieldnames=list(rows[0]) if rows else [f.name for f in fields(Metric)])
+    writer.writeheader()
+    writer.writerows(rows)
+    atomic_write_text(out / "metrics.csv", text.getvalue())
+    plot_metrics(metrics, out / "validation.png", title=f"{config.task}: {config.sampler} (seed {config.seed})")
+
+
+def plot_metrics(metrics: list[Metric], path: str | os.PathLike[str], title: str = "") -> None:
+    """PNG of both validation MSEs vs solves and vs training steps (matplotlib Agg, headless)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(10, 4), constrained_layout=True)
+    for ax, key in zip(axes, ("solves", "train_steps"), strict=True):
+        xs = [getattr(m, key) for m in metrics]
+        ax.plot(xs, [m.mse_initial for m in metrics], marker="o", ms=3, label="mse_initial (starts, full tau)")
+        ax.plot(xs, [m.mse_all_knots for m in metrics], marker="s", ms=3, label="mse_all_knots")
+        ax.set_xlabel("solves" if key == "solves" else "training steps")
+        ax.set_ylabel("validation MSE")
+        ax.set_yscale("log")
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend()
+    if title:
+        fig.suptitle(title)
+    fig.savefig(path, dpi=100)
+    plt.close(fig)

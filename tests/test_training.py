@@ -1,0 +1,217 @@
+"""Training loop (Alg. 2) on the toy solver: budgets, identical starts, determinism, exact resume, outputs."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+import torch
+from toy_problem import ToySolver
+
+from seagul_envs import make_task
+from seagul_learn.dataset import Dataset
+from seagul_learn.training import TrainConfig, ValidationSpec, train, training_loss, validation_dataset
+from seagul_learn.value_network import ValueNetwork
+
+
+def _config(tmp_path, **overrides) -> TrainConfig:
+    base = dict(
+        task="acrobot",
+        sampler="adversarial",
+        budget=12,
+        solves_per_round=5,
+        train_steps_per_round=15,
+        batch_size=32,
+        pretrain_solves=4,
+        pretrain_steps=10,
+        adv_max_steps=3,
+        seed=0,
+        cache_dir=str(tmp_path / "cache"),
+        progress=False,
+    )
+    base.update(overrides)
+    return TrainConfig(**base)
+
+
+def _run(tmp_path, name: str, toy: ToySolver | None = None, resume: bool = False, **overrides):
+    toy = toy or ToySolver(make_task(overrides.get("task", "acrobot")), fail_above=np.pi + 0.25)
+    return train(_config(tmp_path, **overrides), tmp_path / name, resume=resume, batch_solver=toy, solver_name="toy")
+
+
+def _dataset_arrays(ds: Dataset) -> list[dict[str, np.ndarray]]:
+    return [r.to_arrays() for r in ds.records()]
+
+
+def _assert_same_datasets(a: Dataset, b: Dataset) -> None:
+    ra, rb = _dataset_arrays(a), _dataset_arrays(b)
+    assert len(ra) == len(rb)
+    for x, y in zip(ra, rb, strict=True):
+        for key in x:
+            if key != "solve_time":
+                np.testing.assert_array_equal(x[key], y[key], err_msg=key)
+
+
+def _weights(net: ValueNetwork) -> np.ndarray:
+    return net.casadi_parameters()
+
+
+@pytest.mark.parametrize("sampler", ["uniform", "adversarial"])
+def test_budget_is_exact_and_failures_are_recorded(tmp_path, sampler):
+    task = make_task("acrobot")
+    toy = ToySolver(task, fail_above=np.pi + 0.2)
+    result = _run(tmp_path, "run", toy=toy, sampler=sampler)
+    records = result.dataset.records()
+    budget_recs = [r for r in records if r.sampler != "pretrain"]
+    assert len(budget_recs) == 12 == result.num_solves
+    assert [r.index for r in records] == list(range(16))
+    failures = sum(not r.success for r in budget_recs)
+    assert result.num_failures == failures == result.metrics[-1].failures
+    assert [m.solves for m in result.metrics] == [0, 5, 10, 12]
+    assert [m.train_steps for m in result.metrics] == [0, 15, 30, 45]
+    # validation solves (200, cached) + pretraining + budget, nothing else
+    assert toy.num_solves == 200 + 4 + 12
+
+
+def test_both_samplers_start_from_identical_parameters_and_the_baseline_starts(tmp_path):
+    uni = _run(tmp_path, "u", sampler="uniform")
+    adv = _run(tmp_path, "a", sampler="adversarial")
+    sob = _run(tmp_path, "s", sampler="uniform", sobolev_weight=1.0)
+    first = {(m.mse_initial, m.mse_all_knots) for m in (uni.metrics[0], adv.metrics[0], sob.metrics[0])}
+    assert len(first) == 1  # identical pretrained network
+    uniform_starts = {tuple(r.x_init) for r in uni.dataset.records() if r.sampler == "uniform"}
+    chain_starts = [tuple(r.x_init) for r in adv.dataset.records() if r.sampler == "adversarial" and r.step == 0]
+    assert chain_starts and all(s in uniform_starts for s in chain_starts)
+    assert any(r.step > 0 for r in adv.dataset.records())
+    assert not np.array_equal(_weights(uni.network), _weights(adv.network))
+
+
+def test_training_reduces_validation_error(tmp_path):
+    result = _run(tmp_path, "r", sampler="uniform", budget=20, train_steps_per_round=400, batch_size=64, lr=3e-3)
+    assert result.metrics[-1].mse_all_knots < 0.3 * result.metrics[0].mse_all_knots
+    assert result.metrics[-1].mse_initial < 0.3 * result.metrics[0].mse_initial
+
+
+def test_same_seed_same_dataset_and_weights_different_seed_differs(tmp_path):
+    a = _run(tmp_path, "a", sobolev_weight=0.5)
+    b = _run(tmp_path, "b", sobolev_weight=0.5, workers=2)  # worker count never changes results
+    _assert_same_datasets(a.dataset, b.dataset)
+    np.testing.assert_array_equal(_weights(a.network), _weights(b.network))
+    c = _run(tmp_path, "c", sobolev_weight=0.5, seed=1)
+    assert not np.array_equal(_weights(a.network), _weights(c.network))
+
+
+@pytest.mark.parametrize("crash_after", [2, 4, 7, 13])  # inside pretraining, right after it, mid-round, last round
+@pytest.mark.parametrize("sampler", ["uniform", "adversarial"])
+def test_resume_after_interruption_matches_uninterrupted_run(tmp_path, crash_after, sampler):
+    task = make_task("acrobot")
+    reference = _run(tmp_path, "ref", sampler=sampler)
+    # the validation set is cached by the reference run; the crash counts training solves only
+    crashing = ToySolver(task, fail_above=np.pi + 0.25, raise_after=crash_after)
+    with pytest.raises(KeyboardInterrupt):
+        _run(tmp_path, "run", toy=crashing, sampler=sampler)
+    assert len(Dataset.open(tmp_path / "run" / "dataset")) == crash_after
+    resumed_toy = ToySolver(task, fail_above=np.pi + 0.25)
+    resumed = _run(tmp_path, "run", toy=resumed_toy, resume=True, sampler=sampler)
+    assert resumed_toy.num_solves == 16 - crash_after  # nothing solved twice, nothing lost
+    _assert_same_datasets(reference.dataset, resumed.dataset)
+    np.testing.assert_array_equal(_weights(reference.network), _weights(resumed.network))
+    ref_metrics = [(m.solves, m.train_steps, m.mse_initial) for m in reference.metrics]
+    assert [(m.solves, m.train_steps, m.mse_initial) for m in resumed.metrics] == ref_metrics
+
+
+def test_resume_of_a_finished_run_is_a_no_op(tmp_path):
+    first = _run(tmp_path, "r")
+    toy = ToySolver(make_task("acrobot"))
+    again = _run(tmp_path, "r", toy=toy, resume=True)
+    assert toy.num_solves == 0
+    np.testing.assert_array_equal(_weights(first.network), _weights(again.network))
+
+
+def test_run_directory_guards(tmp_path):
+    _run(tmp_path, "r")
+    with pytest.raises(FileExistsError, match=r"already holds a run.*resume"):
+        _run(tmp_path, "r")
+    with pytest.raises(ValueError, match=r"different configuration \(budget: stored 12"):
+        _run(tmp_path, "r", resume=True, budget=13)
+    (tmp_path / "other").mkdir()
+    (tmp_path / "other" / "file.txt").write_text("x")
+    with pytest.raises(FileExistsError, match="not a seagul run"):
+        _run(tmp_path, "other")
+
+
+def test_outputs_are_written(tmp_path):
+    result = _run(tmp_path, "r", task="glider", sampler="adversarial", eval_every=5)
+    out = tmp_path / "r"
+    net = ValueNetwork.load(out / "network.pt")
+    assert net.task_name == "glider"
+    np.testing.assert_array_equal(net.casadi_parameters(), _weights(result.network))
+    data = json.loads((out / "metrics.json").read_text())
+    keys = {"solves", "train_steps", "mse_initial", "mse_all_knots", "failures"}
+    assert keys <= set(data["metrics"][0]) and data["config"]["task"] == "glider"
+    assert [m["train_steps"] for m in data["metrics"]] == [0, 5, 10, 15, 20, 25, 30, 35, 40, 45]
+    assert (out / "metrics.csv").read_text().startswith("solves,train_steps,mse_initial")
+    assert (out / "validation.png").read_bytes()[:4] == b"\x89PNG"
+    glider_taus = {r.tau for r in result.dataset.records()}
+    assert all(0.75 - 1e-12 <= t <= 0.85 + 1e-12 for t in glider_taus)
+
+
+def test_validation_set_is_cached_and_follows_the_spec(tmp_path):
+    task = make_task("acrobot")
+    toy = ToySolver(task)
+    records = validation_dataset(task, toy, "toy", tmp_path)
+    assert len(records) == 200 and toy.num_solves == 200
+    starts = np.array([r.x_init for r in records])
+    assert np.all(starts[:100, 2:] == 0.0)  # the grid is at zero velocity
+    assert len(np.unique(starts[:100, 0])) == 10 and len(np.unique(starts[:100, 1])) == 10
+    assert all(task.in_x0(x) for x in starts)
+    again = ToySolver(task)
+    assert len(validation_dataset(task, again, "toy", tmp_path)) == 200 and again.num_solves == 0
+    other = ToySolver(task)
+    validation_dataset(task, other, "toy-v2", tmp_path)  # other solver settings: another cache entry
+    assert other.num_solves == 200
+    glider = make_task("glider")
+    small = ValidationSpec(grid_coords=(0, 1, 4), grid_points=2, num_random=3)
+    g = validation_dataset(glider, ToySolver(glider), "toy", tmp_path, spec=small)
+    assert len(g) == 11 and all(r.tau == 0.8 for r in g)
+
+
+def test_sobolev_term_matches_its_definition():
+    task = make_task("acrobot")
+    net = ValueNetwork(4, seed=0)
+    rng = np.random.default_rng(0)
+    x = task.sample_x0(rng, 8)
+    tau = rng.uniform(0, 5, 8)
+    net.set_normalization(x, tau, rng.normal(10, 3, 8))
+    _, own_grad, _ = net.value_and_grad(x, tau)
+    batch = {
+        "x": torch.tensor(x),
+        "tau": torch.tensor(tau),
+        "value": torch.tensor(rng.normal(10, 3, 8)),
+        "grad_x": torch.tensor(own_grad),
+        "grad_ok": torch.ones(8, dtype=torch.bool),
+    }
+    plain = training_loss(net, batch, 0.0).item()
+    assert training_loss(net, batch, 3.0).item() == pytest.approx(plain, rel=1e-12)
+    shifted = dict(batch, grad_x=batch["grad_x"] + 0.5)
+    expected = np.mean((0.5 * net.in_std[:4].numpy() / net.out_std.item()) ** 2)
+    assert training_loss(net, shifted, 3.0).item() == pytest.approx(plain + 3.0 * expected, rel=1e-10)
+    masked = dict(shifted, grad_ok=torch.zeros(8, dtype=torch.bool))
+    assert training_loss(net, masked, 3.0).item() == pytest.approx(plain, rel=1e-12)
+
+
+@pytest.mark.parametrize(
+    ("override", "message"),
+    [
+        ({"task": "pendulum"}, r"unknown task 'pendulum'; available tasks: \['acrobot', 'glider'\]"),
+        ({"sampler": "greedy"}, "unknown sampler 'greedy'"),
+        ({"budget": 0}, "budget must be >= 1"),
+        ({"workers": 0}, "workers must be >= 1"),
+        ({"sobolev_weight": -1.0}, "sobolev_weight must be >= 0"),
+        ({"adv_projection": "wrap"}, "projection must be 'clip' or 'reflect'"),
+        ({"backend": "dask"}, "unknown backend 'dask'"),
+    ],
+)
+def test_bad_config_is_named(tmp_path, override, message):
+    with pytest.raises(ValueError, match=message):
+        _config(tmp_path, **override)
