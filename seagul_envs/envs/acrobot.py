@@ -59,15 +59,26 @@ class AcrobotEnv(TaskSimulatorEnv):
 
     ## Arguments
 
-    ``gym.make("SeagulAcrobot-v0", dt=0.1, render_mode=None, task=None)``: ``dt`` is the control period (s);
-    ``task`` a custom acrobot :class:`~seagul_envs.tasks.base.Task` (e.g. ``make_acrobot_task(AcrobotParams(b1=0))``),
-    default ``make_task("acrobot")``; ``render_mode`` is ``"rgb_array"`` (headless) or ``"human"``.
+    ``gym.make("SeagulAcrobot-v0", dt=0.1, render_mode=None, task=None, max_substep=None)``: ``dt`` is the control
+    period (s); ``task`` a custom acrobot :class:`~seagul_envs.tasks.base.Task` (e.g.
+    ``make_acrobot_task(AcrobotParams(b1=0))``), default ``make_task("acrobot")``; ``render_mode`` is
+    ``"rgb_array"`` (headless) or ``"human"``; ``max_substep`` the largest RK4 substep (default
+    ``task.max_sim_substep`` = 5 ms). Accuracy of one 0.1 s step against a 1e-12 reference, 5 ms substeps: ~5e-8 at
+    X0 speeds, ~1e-6 up to 6 rad/s, ~2e-4 at 10-20 rad/s; at the ~30 rad/s of violent swings use
+    ``max_substep=0.001`` or less for evaluation (error ~1e-2 at 5 ms there, RK4 error falls as the substep^4).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}  # noqa: RUF012 (Gymnasium convention)
 
-    def __init__(self, dt: float | None = None, render_mode: str | None = None, task: Task | None = None) -> None:
-        super().__init__(make_task("acrobot") if task is None else task, dt=dt, render_mode=render_mode)
+    def __init__(
+        self,
+        dt: float | None = None,
+        render_mode: str | None = None,
+        task: Task | None = None,
+        max_substep: float | None = None,
+    ) -> None:
+        task = make_task("acrobot") if task is None else task
+        super().__init__(task, dt=dt, render_mode=render_mode, max_substep=max_substep)
 
     def _render_frame(self) -> np.ndarray:
         p = self.task.params

@@ -52,18 +52,17 @@ class AcrobotMujocoEnv(SeagulEnv):
 
     ## Arguments
 
-    ``gym.make("SeagulAcrobotMujoco-v0", dt=0.1, render_mode=None, max_substep=0.005)``: control period (s),
+    ``gym.make("SeagulAcrobotMujoco-v0", dt=0.1, render_mode=None, max_substep=None)``: control period (s),
     render mode (``"rgb_array"`` draws headless with numpy, MuJoCo's OpenGL renderer is not needed), and the largest
-    MuJoCo timestep inside a period.
+    MuJoCo timestep inside a period (default ``task.max_sim_substep`` = 5 ms).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}  # noqa: RUF012 (Gymnasium convention)
 
-    def __init__(self, dt: float | None = None, render_mode: str | None = None, max_substep: float = 0.005) -> None:
-        if not (math.isfinite(max_substep) and max_substep > 0):
-            raise ValueError(f"max_substep must be a positive number of seconds, got {max_substep}")
-        self.max_substep = float(max_substep)
-        super().__init__(make_task("acrobot"), dt=dt, render_mode=render_mode)
+    def __init__(
+        self, dt: float | None = None, render_mode: str | None = None, max_substep: float | None = None
+    ) -> None:
+        super().__init__(make_task("acrobot"), dt=dt, render_mode=render_mode, max_substep=max_substep)
 
     def _restore_runtime(self) -> None:
         self.model = mujoco.MjModel.from_xml_path(str(ACROBOT_XML))

@@ -63,11 +63,11 @@ class BufferedFunction:
         self._eval()
 
 
-def step_function(task: Task, dt: float) -> ca.Function:
-    """``(x, u) -> (x(t + dt), l(x, u))``: ``task.simulator(dt)`` and the stage cost in one Function call."""
+def step_function(task: Task, dt: float, max_substep: float | None = None) -> ca.Function:
+    """``(x, u) -> (x(t + dt), l(x, u))``: ``task.simulator(dt, max_substep)`` and the stage cost in one call."""
     x = ca.SX.sym("x", task.nx)
     u = ca.SX.sym("u", task.nu)
-    sim = task.simulator(dt)
+    sim = task.simulator(dt, max_substep)
     return ca.Function(f"{task.name}_env_step", [x, u], [sim(x, u), task.stage_cost(x, u)], ["x", "u"], ["xn", "l"])
 
 
@@ -80,16 +80,18 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
 
     metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
 
-    def __init__(self, task: Task, dt: float | None = None, render_mode: str | None = None) -> None:
+    def __init__(
+        self,
+        task: Task,
+        dt: float | None = None,
+        render_mode: str | None = None,
+        max_substep: float | None = None,
+    ) -> None:
         self.task = task
-        dt = task.control_period if dt is None else dt
-        try:
-            dt = float(dt)
-        except (TypeError, ValueError):
-            raise ValueError(f"{task.name}: dt must be a positive number of seconds, got {dt!r}") from None
-        if not (math.isfinite(dt) and dt > 0.0):
-            raise ValueError(f"{task.name}: dt must be a positive number of seconds, got {dt}")
-        self.dt = dt
+        self.dt = _positive_seconds(task.control_period if dt is None else dt, f"{task.name}: dt")
+        self.max_substep = _positive_seconds(
+            task.max_sim_substep if max_substep is None else max_substep, f"{task.name}: max_substep"
+        )
         if render_mode is not None and render_mode not in self.metadata["render_modes"]:
             raise ValueError(f"render_mode must be one of {self.metadata['render_modes']} or None, got {render_mode!r}")
         self.render_mode = render_mode
@@ -320,6 +322,16 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
         return ()
 
 
+def _positive_seconds(value: Any, what: str) -> float:
+    try:
+        seconds = float(value)
+    except (TypeError, ValueError):
+        raise ValueError(f"{what} must be a positive number of seconds, got {value!r}") from None
+    if not (math.isfinite(seconds) and seconds > 0.0):
+        raise ValueError(f"{what} must be a positive number of seconds, got {seconds}")
+    return seconds
+
+
 def _shared_task(name: str) -> Task | None:
     try:
         return make_task(name)
@@ -343,7 +355,7 @@ class TaskSimulatorEnv(SeagulEnv):
     def _kernel(self, h: float) -> BufferedFunction:
         kernel = self._kernels.get(h)
         if kernel is None:
-            kernel = self._kernels[h] = BufferedFunction(step_function(self.task, h))
+            kernel = self._kernels[h] = BufferedFunction(step_function(self.task, h, self.max_substep))
         return kernel
 
     def _set_sim_state(self, x: np.ndarray) -> None:
