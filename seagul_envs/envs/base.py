@@ -108,6 +108,7 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
         self._nu = task.nu
         self._u_low = task.u_low.astype(np.float64)
         self._u_high = task.u_high.astype(np.float64)
+        self._u_low_1, self._u_high_1 = float(self._u_low[0]), float(self._u_high[0])
         self._x_low = task.x_low.astype(np.float64)
         self._x_high = task.x_high.astype(np.float64)
         # Rounding slack so that a state exactly on a bound (e.g. the glider's elevator at its stop after RK4
@@ -238,10 +239,12 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
         self._last_u = u
         reward = -h * stage
         self._truncated = self._k >= self._n_steps
-        if self._bounded or not np.isfinite(x_next).all():
-            self._terminated = not (
-                np.isfinite(x_next).all() and np.all(x_next >= self._x_low_tol) and np.all(x_next <= self._x_high_tol)
-            )
+        # One float sum detects NaN/inf (and blow-ups that overflow) cheaper than np.isfinite(...).all().
+        finite = math.isfinite(float(x_next.sum()))
+        if self._bounded:
+            self._terminated = not (finite and (x_next >= self._x_low_tol).all() and (x_next <= self._x_high_tol).all())
+        else:
+            self._terminated = not finite
         if self._terminated or self._truncated:
             reward -= float(self.task.terminal_cost(x_next))
         if self.render_mode == "human":
@@ -274,6 +277,12 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
     def _check_action(self, action: Any) -> np.ndarray:
         """Validate (shape, finiteness) and clip an action; raise ValueError before any state changes."""
         u = np.asarray(action, dtype=np.float64)
+        if self._nu == 1 and u.shape == (1,):
+            # Hot path of every 1-input task: scalar math is ~5x cheaper than numpy ufuncs on a 1-vector.
+            value = u.item()
+            if not math.isfinite(value):
+                raise ValueError(f"{self.task.name}: action contains NaN or inf: {[value]}")
+            return np.array([min(max(value, self._u_low_1), self._u_high_1)])
         if u.shape != (self._nu,):
             if u.shape == () and self._nu == 1:
                 u = u.reshape(1)
