@@ -1,0 +1,91 @@
+"""The ``seagul`` command line: one subcommand per module in :mod:`seagul_learn.commands`.
+
+Adding a subcommand (e.g. ``evaluate``, ``reproduce``) takes one new file and no edit here: create
+``seagul_learn/commands/<name>.py`` defining ::
+
+    COMMAND = Command(
+        name="evaluate",
+        help="one line shown by `seagul --help`",
+        add_arguments=add_arguments,   # (argparse.ArgumentParser) -> None
+        run=run,                       # (argparse.Namespace) -> int exit code
+    )
+
+Modules are discovered in alphabetical order (files starting with ``_`` are helpers, e.g.
+:mod:`seagul_learn.commands._args` has the shared argument types: task names that list the available ones,
+positive integers, the ``--workers``/``--backend`` pair). Argument errors exit with status 2 and a message naming
+the argument; a ``ValueError``/``FileExistsError``/``FileNotFoundError`` raised by a command is reported as
+``seagul <command>: error: <message>`` (status 2) without a traceback; Ctrl-C exits with status 130.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import pkgutil
+import sys
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+
+
+@dataclass(frozen=True)
+class Command:
+    """A ``seagul`` subcommand."""
+
+    name: str
+    """The word after ``seagul``."""
+    help: str
+    """One line for ``seagul --help``."""
+    add_arguments: Callable[[argparse.ArgumentParser], None]
+    """Declares the subcommand's arguments."""
+    run: Callable[[argparse.Namespace], int]
+    """Runs it; returns the exit code."""
+
+
+def discover_commands() -> list[Command]:
+    """Every ``COMMAND`` defined by a public module of :mod:`seagul_learn.commands`, by module name."""
+    import seagul_learn.commands as package
+
+    commands: list[Command] = []
+    for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name):
+        if info.name.startswith("_"):
+            continue
+        module = importlib.import_module(f"{package.__name__}.{info.name}")
+        command = getattr(module, "COMMAND", None)
+        if isinstance(command, Command):
+            commands.append(command)
+    return commands
+
+
+def build_parser(commands: Sequence[Command] | None = None) -> argparse.ArgumentParser:
+    """The top-level parser with one subparser per command."""
+    parser = argparse.ArgumentParser(
+        prog="seagul",
+        description="Learn value functions from trajectory optimization with adversarial sampling (SEAGuL).",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    for command in commands if commands is not None else discover_commands():
+        p = sub.add_parser(command.name, help=command.help, description=command.help)
+        command.add_arguments(p)
+        p.set_defaults(_run=command.run, _name=command.name)
+    return parser
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the ``seagul`` console script."""
+    parser = build_parser()
+    args = parser.parse_args(argv)
+    try:
+        return int(args._run(args) or 0)
+    except (ValueError, FileExistsError, FileNotFoundError) as exc:
+        print(f"seagul {args._name}: error: {exc}", file=sys.stderr)
+        return 2
+    except KeyboardInterrupt:
+        print(f"\nseagul {args._name}: interrupted (rerun with --resume to continue where it stopped)", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    # Under ``python -m`` this file is ``__main__``; the commands register against ``seagul_learn.cli.Command``.
+    from seagul_learn.cli import main as _main
+
+    sys.exit(_main())

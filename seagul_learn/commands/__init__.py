@@ -1,0 +1,1 @@
+"""``seagul`` subcommands: each public module defines ``COMMAND`` (see :mod:`seagul_learn.cli`)."""

@@ -1,0 +1,109 @@
+"""The ``seagul`` CLI: argument errors name the argument; train/generate run end to end (toy solver injected)."""
+
+from __future__ import annotations
+
+import json
+import subprocess
+import sys
+
+import numpy as np
+import pytest
+from toy_problem import ToySolver
+
+import seagul_learn.solving
+import seagul_learn.training
+from seagul_envs import make_task
+from seagul_learn.cli import Command, discover_commands, main
+from seagul_learn.dataset import Dataset
+from seagul_learn.value_network import ValueNetwork
+
+
+@pytest.mark.parametrize(
+    ("argv", "message"),
+    [
+        (
+            ["train", "--task", "pendulum", "--out", "x"],
+            "argument --task: unknown task 'pendulum'; available tasks: acrobot, glider",
+        ),
+        (["train", "--task", "acrobot", "--budget", "0", "--out", "x"], "argument --budget: must be >= 1, got 0"),
+        (["train", "--task", "acrobot", "--budget", "ten", "--out", "x"], "argument --budget: expected an integer"),
+        (["train", "--task", "acrobot", "--workers", "0", "--out", "x"], "argument --workers: must be >= 1"),
+        (["train", "--task", "acrobot", "--sampler", "greedy", "--out", "x"], "argument --sampler: invalid choice"),
+        (["train", "--task", "acrobot", "--backend", "dask", "--out", "x"], "argument --backend: invalid choice"),
+        (["train", "--task", "acrobot", "--sobolev", "-1", "--out", "x"], "argument --sobolev: must be a finite"),
+        (["train", "--task", "acrobot", "--hidden", "3,a", "--out", "x"], "argument --hidden: expected comma"),
+        (["train", "--task", "acrobot"], "the following arguments are required: --out"),
+        (["train", "--task", "acrobot", "--out", "x", "--solver-options", "[1]"], "expected a JSON object"),
+        (["generate", "--task", "acrobot"], "one of the arguments --num --validation is required"),
+        (["generate", "--task", "glider", "--num", "-3"], "argument --num: must be >= 1, got -3"),
+        (["frobnicate"], "invalid choice: 'frobnicate'"),
+    ],
+)
+def test_bad_arguments_are_named(argv, message, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(argv)
+    assert info.value.code == 2
+    assert message in capsys.readouterr().err
+
+
+def test_generate_num_requires_out(capsys):
+    assert main(["generate", "--task", "acrobot", "--num", "3"]) == 2
+    assert "--out is required with --num" in capsys.readouterr().err
+
+
+def test_commands_are_discovered_from_the_commands_package():
+    names = [c.name for c in discover_commands()]
+    assert {"generate", "train"} <= set(names) and names == sorted(names)
+    assert all(isinstance(c, Command) for c in discover_commands())
+
+
+def test_console_script_entry_point_runs():
+    out = subprocess.run(
+        [sys.executable, "-m", "seagul_learn.cli", "--help"], capture_output=True, text=True, check=True
+    ).stdout
+    assert "train" in out and "generate" in out
+
+
+@pytest.fixture
+def toy_solver(monkeypatch):
+    """Replace the trajectory optimizer by the toy for the CLI (the plumbing is what is tested here)."""
+    toys: dict[str, ToySolver] = {}
+
+    def fake(task_name, **kwargs):
+        toys.setdefault(task_name, ToySolver(make_task(task_name)))
+        return toys[task_name]
+
+    monkeypatch.setattr(seagul_learn.training, "trajopt_batch_solver", fake)
+    monkeypatch.setattr(seagul_learn.solving, "trajopt_batch_solver", fake)
+    return toys
+
+
+def test_train_end_to_end_and_resume_errors(tmp_path, toy_solver, capsys):
+    argv = ["train", "--task", "acrobot", "--sampler", "adversarial", "--budget", "6", "--seed", "3",
+            "--out", str(tmp_path / "run"), "--solves-per-round", "3", "--train-steps-per-round", "5",
+            "--pretrain-solves", "3", "--pretrain-steps", "5", "--cache-dir", str(tmp_path / "cache"),
+            "--no-progress", "--sobolev", "0.5"]  # fmt: skip
+    assert main(argv) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert lines[-1] == str(tmp_path / "run") and "6 solves" in lines[-2]
+    assert ValueNetwork.load(tmp_path / "run" / "network.pt").task_name == "acrobot"
+    config = json.loads((tmp_path / "run" / "config.json").read_text())
+    assert config["sobolev_weight"] == 0.5 and config["seed"] == 3 and config["budget"] == 6
+    assert main(argv) == 2
+    assert "already holds a run" in capsys.readouterr().err
+    assert main([*argv, "--resume"]) == 0
+
+
+def test_generate_uniform_and_validation(tmp_path, toy_solver, capsys):
+    out = tmp_path / "data"
+    argv = ["generate", "--task", "glider", "--num", "5", "--out", str(out), "--no-progress", "--workers", "2"]
+    assert main(argv) == 0
+    records = Dataset.open(out).records()
+    assert len(records) == 5 and all(r.tau == 0.8 for r in records)
+    assert main(argv) == 2 and "pass --resume" in capsys.readouterr().err
+    assert main([*argv, "--resume"]) == 0 and "5 reused" in capsys.readouterr().out
+    cache = tmp_path / "cache"
+    assert main(["generate", "--task", "acrobot", "--validation", "--cache-dir", str(cache), "--no-progress"]) == 0
+    assert "200 solves" in capsys.readouterr().out
+    starts = np.array([r.x_init for r in Dataset.open(next(cache.iterdir())).records()])
+    assert starts.shape == (200, 4)
