@@ -179,6 +179,19 @@ def test_acrobot_control_step_matches_fine_reference(seed: int) -> None:
         np.testing.assert_allclose(info["state"], _reference_step(ref, x0, u, 0.1), rtol=5e-7, atol=1e-6)
 
 
+def test_shortened_last_step_matches_fine_reference() -> None:
+    """tau = 0.25 s with dt = 0.1 s: steps of 0.1, 0.1 and 0.05 s, the last through the variable-step kernel."""
+    ref = LagrangianAcrobot(make_task("acrobot").params)
+    env = AcrobotEnv()
+    x = np.array([2.5, 0.3, 1.0, -1.0])
+    env.reset(options={"state": x, "time_to_go": 0.25})
+    for h, u in ((0.1, 5.0), (0.1, -3.0), (0.05, 7.0)):
+        x = _reference_step(ref, x, u, h)
+        _, _, _, truncated, info = env.step(np.array([u]))
+        np.testing.assert_allclose(info["state"], x, atol=1e-6)
+    assert truncated
+
+
 def test_acrobot_fast_states_need_finer_substeps() -> None:
     """At 10-12 rad/s 5 ms substeps are off by ~1e-4; ``max_substep=1 ms`` restores ~1e-6 (RK4: error ~ h^4)."""
     ref = LagrangianAcrobot(make_task("acrobot").params)

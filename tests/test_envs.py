@@ -248,6 +248,7 @@ def test_actions_are_clipped(env_id: str) -> None:
         ({"time_to_go": float("nan")}, "finite"),
         ({"time_to_go": 99.0}, "outside"),
         ({"x0": [0.0]}, "unknown reset option"),
+        ({"state": {"th1": 0.0}}, "must be"),
     ],
 )
 def test_bad_reset_options(env_id: str, options: dict, message: str) -> None:
@@ -350,3 +351,18 @@ def test_registration_is_idempotent() -> None:
     before = {k: gym.spec(k).entry_point for k in ENV_IDS}
     seagul_envs.register_envs()
     assert {k: gym.spec(k).entry_point for k in ENV_IDS} == before
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_time_to_go_from_a_float32_observation_is_accepted(env_id: str) -> None:
+    env = _make(env_id)
+    hi = env.unwrapped.task.tau_range[1]
+    _, info = env.reset(seed=0, options={"time_to_go": np.float32(hi)})  # e.g. an observation's last entry
+    assert info["time_to_go"] == hi
+
+
+def test_custom_task_must_match_the_env() -> None:
+    from seagul_envs.envs.acrobot import AcrobotEnv
+
+    with pytest.raises(ValueError, match="needs a acrobot task"):
+        AcrobotEnv(task=seagul_envs.make_task("glider"))

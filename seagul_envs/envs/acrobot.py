@@ -78,6 +78,8 @@ class AcrobotEnv(TaskSimulatorEnv):
         max_substep: float | None = None,
     ) -> None:
         task = make_task("acrobot") if task is None else task
+        if task.name != "acrobot":
+            raise ValueError(f"{type(self).__name__} needs a acrobot task, got {task.name!r}")
         super().__init__(task, dt=dt, render_mode=render_mode, max_substep=max_substep)
 
     def _render_frame(self) -> np.ndarray:

@@ -68,10 +68,10 @@ class AcrobotMujocoEnv(SeagulEnv):
         self.model = mujoco.MjModel.from_xml_path(str(ACROBOT_XML))
         self.data = mujoco.MjData(self.model)
         self._stage_cost = BufferedFunction(self.task.stage_cost)
-        self._substeps: dict[float, tuple[float, int]] = {}
+        self._n_sub = max(1, math.ceil(self.dt / self.max_substep - 1e-9))  # equal MuJoCo steps per period
 
     def _runtime_keys(self) -> tuple[str, ...]:
-        return ("model", "data", "_stage_cost", "_substeps")
+        return ("model", "data", "_stage_cost", "_n_sub")
 
     def _set_sim_state(self, x: np.ndarray) -> None:
         mujoco.mj_resetData(self.model, self.data)
@@ -84,17 +84,11 @@ class AcrobotMujocoEnv(SeagulEnv):
         cost.args[0][:] = self._x
         cost.args[1][:] = u
         cost()
-        timestep, n = self._substeps.get(h) or self._plan(h)
-        self.model.opt.timestep = timestep
+        n = self._n_sub if h == self.dt else max(1, math.ceil(h / self.max_substep - 1e-9))
+        self.model.opt.timestep = h / n
         self.data.ctrl[:] = u
         mujoco.mj_step(self.model, self.data, nstep=n)
         return np.concatenate([self.data.qpos, self.data.qvel]), float(cost.res[0][0])
-
-    def _plan(self, h: float) -> tuple[float, int]:
-        """Equal MuJoCo steps of at most ``max_substep`` covering ``h`` exactly."""
-        n = max(1, math.ceil(h / self.max_substep - 1e-9))
-        self._substeps[h] = (h / n, n)
-        return self._substeps[h]
 
     def _render_frame(self) -> np.ndarray:
         p = self.task.params

@@ -71,6 +71,17 @@ def step_function(task: Task, dt: float, max_substep: float | None = None) -> ca
     return ca.Function(f"{task.name}_env_step", [x, u], [sim(x, u), task.stage_cost(x, u)], ["x", "u"], ["xn", "l"])
 
 
+def variable_step_function(task: Task, substeps: int) -> ca.Function:
+    """``(x, u, h) -> (x(t + h), l(x, u))`` with ``substeps`` RK4 substeps (``task.rk4_step``) and the stage cost."""
+    x = ca.SX.sym("x", task.nx)
+    u = ca.SX.sym("u", task.nu)
+    h = ca.SX.sym("h")
+    x_next = task.rk4_step(substeps)(x, u, h)
+    return ca.Function(
+        f"{task.name}_env_step_h", [x, u, h], [x_next, task.stage_cost(x, u)], ["x", "u", "h"], ["xn", "l"]
+    )
+
+
 class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
     """Base class of the seagul envs; subclasses set the state and advance it (see the module docstring).
 
@@ -187,7 +198,12 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
             )
         # Validate everything before touching the episode, so a bad call leaves the env as it was.
         if options.get("state") is not None:
-            x0 = self.task.check_state(options["state"], "reset state")
+            try:
+                x0 = self.task.check_state(options["state"], "reset state")
+            except TypeError:  # e.g. a dict: numpy cannot make a float array of it
+                raise ValueError(
+                    f"{self.task.name}: reset state must be {self.task.nx} numbers, got {options['state']!r}"
+                ) from None
             if np.any(x0 < self._x_low_tol) or np.any(x0 > self._x_high_tol):
                 raise ValueError(
                     f"{self.task.name}: reset state {x0.tolist()} is outside the state bounds "
@@ -196,7 +212,7 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
         else:
             x0 = self.task.sample_x0(self.np_random)
         if options.get("time_to_go") is not None:
-            tau = self.task.check_tau(options["time_to_go"], allow_shorter=True)
+            tau = self.task.check_tau(self._snap_tau(options["time_to_go"]), allow_shorter=True)
             if tau <= 0.0:
                 raise ValueError(f"{self.task.name}: time to go must be positive, got {tau}")
         else:
@@ -274,6 +290,13 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
             self._viewer = None
 
     # ---------------------------------------------------------------- helpers
+    def _snap_tau(self, tau: Any) -> Any:
+        """Accept the float32 rounding of the largest time to go (an observation's last entry fed back)."""
+        hi = float(self.task.tau_range[1])
+        if isinstance(tau, (float, int, np.floating, np.integer)) and hi < float(tau) <= hi * (1 + 1e-6):
+            return hi
+        return tau
+
     def _check_action(self, action: Any) -> np.ndarray:
         """Validate (shape, finiteness) and clip an action; raise ValueError before any state changes."""
         u = np.asarray(action, dtype=np.float64)
@@ -352,27 +375,31 @@ class TaskSimulatorEnv(SeagulEnv):
     """An env that integrates the Task's CasADi model with the RK4 map of ``task.simulator(dt)``.
 
     The hot path is one FunctionBuffer evaluation of ``(x, u) -> (x_next, l(x, u))`` generated from the model
-    (:func:`step_function`), on preallocated arrays.
+    (:func:`step_function`), on preallocated arrays. A shortened last step (``tau`` not a multiple of ``dt``) uses
+    the same number of RK4 substeps with the step length as an input (:func:`variable_step_function`), so arbitrary
+    ``tau`` values never build new kernels.
     """
 
     def _restore_runtime(self) -> None:
-        self._kernels: dict[float, BufferedFunction] = {}
+        self._kernel = BufferedFunction(step_function(self.task, self.dt, self.max_substep))
+        self._kernel_h: BufferedFunction | None = None  # built on the first shortened step
 
     def _runtime_keys(self) -> tuple[str, ...]:
-        return ("_kernels",)
-
-    def _kernel(self, h: float) -> BufferedFunction:
-        kernel = self._kernels.get(h)
-        if kernel is None:
-            kernel = self._kernels[h] = BufferedFunction(step_function(self.task, h, self.max_substep))
-        return kernel
+        return ("_kernel", "_kernel_h")
 
     def _set_sim_state(self, x: np.ndarray) -> None:
         pass  # the state lives in self._x
 
     def _advance(self, u: np.ndarray, h: float) -> tuple[np.ndarray, float]:
-        kernel = self._kernels.get(h) or self._kernel(h)
-        x_arg, u_arg = kernel.args
+        if h == self.dt:
+            kernel = self._kernel
+        else:
+            if self._kernel_h is None:
+                substeps = max(1, math.ceil(self.dt / self.max_substep - 1e-9))  # h < dt: substeps stay shorter
+                self._kernel_h = BufferedFunction(variable_step_function(self.task, substeps))
+            kernel = self._kernel_h
+            kernel.args[2][0] = h
+        x_arg, u_arg = kernel.args[0], kernel.args[1]
         x_arg[:] = self._x
         u_arg[:] = u
         kernel()

@@ -81,6 +81,8 @@ class GliderEnv(TaskSimulatorEnv):
         max_substep: float | None = None,
     ) -> None:
         task = make_task("glider") if task is None else task
+        if task.name != "glider":
+            raise ValueError(f"{type(self).__name__} needs a glider task, got {task.name!r}")
         super().__init__(task, dt=dt, render_mode=render_mode, max_substep=max_substep)
         self._trail: list[tuple[float, float]] = []
 
