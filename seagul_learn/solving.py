@@ -9,8 +9,13 @@ record atomically as soon as its chunk finishes, and counts solves and failures.
 
 from __future__ import annotations
 
+import hashlib
 import json
+import os
+import tempfile
 from collections.abc import Callable, Sequence
+from dataclasses import fields
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -127,3 +132,95 @@ class SolveRunner:
             for rec in out:
                 self.on_record(rec)
         return out
+
+
+class CachedBatchSolver:
+    """Wraps a batch solver with an on-disk cache of results keyed by ``(solver_name, x, tau)`` (bit-exact).
+
+    For experiments that solve the same starts several times (the uniform baseline with and without Sobolev
+    training, the shared pretraining set, adversarial chains starting at the baseline's starts). One ``.npz`` per
+    result, written atomically, so concurrent processes sharing a cache are safe.
+    """
+
+    def __init__(self, batch_solver: BatchSolver, cache_dir: str | os.PathLike[str], solver_name: str) -> None:
+        self.batch_solver = batch_solver
+        self.cache_dir = Path(cache_dir)
+        self.solver_name = solver_name
+        self.hits = 0
+        self.misses = 0
+
+    def _path(self, x: np.ndarray, tau: float) -> Path:
+        digest = hashlib.sha256()
+        digest.update(self.solver_name.encode())
+        digest.update(np.ascontiguousarray(x, dtype=np.float64).tobytes())
+        digest.update(np.float64(tau).tobytes())
+        key = digest.hexdigest()
+        return self.cache_dir / key[:2] / f"{key}.npz"
+
+    def __call__(self, starts: np.ndarray, taus: np.ndarray) -> list[SolveResult]:
+        starts = np.atleast_2d(np.asarray(starts, dtype=np.float64))
+        taus = np.asarray(taus, dtype=np.float64).reshape(-1)
+        out: list[SolveResult | None] = [None] * starts.shape[0]
+        missing: list[int] = []
+        for i, (x, tau) in enumerate(zip(starts, taus, strict=True)):
+            path = self._path(x, tau)
+            if path.is_file():
+                try:
+                    out[i] = _load_result(path)
+                    self.hits += 1
+                    continue
+                except Exception:  # a damaged cache entry is solved again
+                    path.unlink(missing_ok=True)
+            missing.append(i)
+        if missing:
+            results = self.batch_solver(starts[missing], taus[missing])
+            for i, result in zip(missing, results, strict=True):
+                _save_result(self._path(starts[i], taus[i]), result)
+                out[i] = result
+            self.misses += len(missing)
+        return [r for r in out if r is not None]
+
+
+def _save_result(path: Path, result: SolveResult) -> None:
+    arrays: dict[str, np.ndarray] = {}
+    for f in fields(SolveResult):
+        value = getattr(result, f.name)
+        if f.name == "attempts":
+            arrays[f.name] = np.array([str(a) for a in value], dtype=np.str_)
+        elif isinstance(value, str):
+            arrays[f.name] = np.array(value, dtype=np.str_)
+        else:
+            arrays[f.name] = np.asarray(value)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as fh:
+            np.savez(fh, **arrays)
+            fh.flush()
+            os.fsync(fh.fileno())
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def _load_result(path: Path) -> SolveResult:
+    with np.load(path, allow_pickle=False) as data:
+        return SolveResult(
+            x_init=np.array(data["x_init"], dtype=np.float64),
+            tau=float(data["tau"]),
+            success=bool(data["success"]),
+            status=str(data["status"][()]),
+            value=float(data["value"]),
+            grad_x=np.array(data["grad_x"], dtype=np.float64),
+            grad_tau=float(data["grad_tau"]),
+            states=np.array(data["states"], dtype=np.float64),
+            controls=np.array(data["controls"], dtype=np.float64),
+            steps=np.array(data["steps"], dtype=np.float64),
+            time_to_go=np.array(data["time_to_go"], dtype=np.float64),
+            cost_to_go=np.array(data["cost_to_go"], dtype=np.float64),
+            knot_grads=np.array(data["knot_grads"], dtype=np.float64),
+            iterations=int(data["iterations"]),
+            solve_time=float(data["solve_time"]),
+            attempts=[str(a) for a in data["attempts"]],
+        )

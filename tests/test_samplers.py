@@ -156,3 +156,25 @@ def test_runner_reuses_records_and_rejects_foreign_ones(tmp_path):
     assert again_toy.num_solves == 0 and [r.value for r in again] == [r.value for r in first]
     with pytest.raises(DatasetError, match="answers another request"):
         SolveRunner(ToySolver(task), ds).solve(starts + 0.01, np.full(3, 5.0), "uniform")
+
+
+def test_cached_batch_solver_reuses_bit_identical_requests(tmp_path):
+    from seagul_learn.solving import CachedBatchSolver
+
+    task = make_task("glider")
+    toy = ToySolver(task, fail_above=-3.5)
+    cached = CachedBatchSolver(toy, tmp_path / "c", "toy")
+    starts = task.sample_x0(np.random.default_rng(0), 6)
+    taus = np.full(6, 0.8)
+    first = cached(starts, taus)
+    again = cached(starts[::-1], taus)
+    assert toy.num_solves == 6 and cached.hits == 6
+    for a, b in zip(first, again[::-1], strict=True):
+        assert a.success == b.success and a.status == b.status
+        np.testing.assert_array_equal(a.knot_grads, b.knot_grads)
+        np.testing.assert_array_equal(a.cost_to_go, b.cost_to_go)
+    cached(starts + 1e-12, taus)  # a different request is solved
+    assert toy.num_solves == 12
+    other = CachedBatchSolver(toy, tmp_path / "c", "toy-v2")  # another solver never shares entries
+    other(starts, taus)
+    assert toy.num_solves == 18
