@@ -210,6 +210,20 @@ def test_acrobot_fast_states_need_finer_substeps() -> None:
 
 
 # ------------------------------------------------------------------------------------------------------ MuJoCo
+def test_mjcf_recipe() -> None:
+    """The SPEC's MJCF choices: RK4, no contacts, an elbow motor with gear 1 and +-20 N m, damping b, massless geoms."""
+    model = AcrobotMujocoEnv().model
+    p = make_task("acrobot").params
+    assert model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4
+    assert model.opt.disableflags & mujoco.mjtDisableBit.mjDSBL_CONTACT
+    assert model.nu == 1 and model.actuator_gear[0, 0] == 1.0 and model.actuator_ctrllimited[0]
+    np.testing.assert_array_equal(model.actuator_ctrlrange[0], [-p.u_max, p.u_max])
+    assert model.actuator_trnid[0, 0] == mujoco.mj_name2id(model, mujoco.mjtObj.mjOBJ_JOINT, "elbow")
+    np.testing.assert_array_equal(model.dof_damping, [p.b1, p.b2])
+    np.testing.assert_array_equal(model.body_mass[1:], [p.m1, p.m2])
+    np.testing.assert_array_equal(model.jnt_axis, [[0, -1, 0], [0, -1, 0]])
+
+
 def test_mujoco_mass_matrix_and_bias_equal_analytic() -> None:
     task = make_task("acrobot")
     ref = LagrangianAcrobot(task.params)
