@@ -366,3 +366,9 @@ def test_custom_task_must_match_the_env() -> None:
 
     with pytest.raises(ValueError, match="needs a acrobot task"):
         AcrobotEnv(task=seagul_envs.make_task("glider"))
+
+
+@pytest.mark.parametrize("env_id", IDS)
+def test_step_before_reset_raises(env_id: str) -> None:
+    with pytest.raises(gym.error.ResetNeeded):
+        _make(env_id).unwrapped.step(np.zeros(1, np.float32))

@@ -133,7 +133,7 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
         self._tau = 0.0
         self._k = 0
         self._n_steps = 0
-        self._last_h = dt
+        self._last_h = self.dt
         self._last_u = np.zeros(task.nu)
         self._terminated = False
         self._truncated = False
@@ -235,6 +235,8 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
 
     def step(self, action: Any) -> tuple[np.ndarray, SupportsFloat, bool, bool, dict[str, Any]]:
         """Advance one control period (see the module docstring for reward and episode end)."""
+        if self._n_steps == 0:
+            raise gym.error.ResetNeeded("Cannot call env.step() before calling env.reset()")
         if self._terminated or self._truncated:
             if not self._warned_done:
                 logger.warn(
