@@ -1,0 +1,273 @@
+"""Batch solves of many independent trajectory optimizations, in-process, across local processes or on Ray.
+
+Every start's result depends only on ``(task, start, tau, solver_options)``: the optimizer's guess strategy is
+deterministic and no warm start carries over from one solve to the next, so the output is identical whatever the
+number of workers or the backend. Each worker builds one :class:`TrajectoryOptimizer` per configuration the first
+time it needs it and keeps it (a build costs ~1 s; a solve ~10-500 ms), and runs single-threaded (BLAS/OpenMP
+threads pinned to 1) so that ``workers`` processes use ``workers`` cores.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+from concurrent.futures import FIRST_COMPLETED, Future, wait
+from typing import Any
+
+import numpy as np
+
+from seagul_learn.results import SolveResult
+
+_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
+
+# Per-process cache: (task name, frozen solver options) -> TrajectoryOptimizer.
+_OPTIMIZERS: dict[tuple[str, tuple[tuple[str, Any], ...]], Any] = {}
+
+
+def _freeze(options: dict[str, Any] | None) -> tuple[tuple[str, Any], ...]:
+    def norm(v: Any) -> Any:
+        if isinstance(v, dict):
+            return tuple(sorted((k, norm(x)) for k, x in v.items()))
+        if isinstance(v, list):
+            return tuple(norm(x) for x in v)
+        return v
+
+    return tuple(sorted((k, norm(v)) for k, v in (options or {}).items()))
+
+
+def _optimizer(task_name: str, frozen: tuple[tuple[str, Any], ...]) -> Any:
+    key = (task_name, frozen)
+    if key not in _OPTIMIZERS:
+        from seagul_learn.trajopt import TrajectoryOptimizer
+
+        options = {k: (dict(v) if k == "solver_options" and isinstance(v, tuple) else v) for k, v in frozen}
+        _OPTIMIZERS[key] = TrajectoryOptimizer(task_name, **options)
+    return _OPTIMIZERS[key]
+
+
+def _solve_chunk(
+    task_name: str, frozen: tuple[tuple[str, Any], ...], starts: np.ndarray, taus: np.ndarray
+) -> list[SolveResult]:
+    opt = _optimizer(task_name, frozen)
+    return [opt.solve(x, float(t)) for x, t in zip(starts, taus, strict=True)]
+
+
+def _worker_init() -> None:
+    for var in _THREAD_VARS:
+        os.environ[var] = "1"
+
+
+def _chunks(n: int, workers: int, chunk_size: int | None) -> list[np.ndarray]:
+    if chunk_size is None:
+        # Several chunks per worker balance uneven solve times; chunks of a few solves amortise the IPC.
+        chunk_size = max(1, min(16, int(np.ceil(n / (4 * max(workers, 1))))))
+    return [np.arange(i, min(i + chunk_size, n)) for i in range(0, n, chunk_size)]
+
+
+def _check_inputs(task_name: str, starts: np.ndarray, taus: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+    from seagul_envs.tasks import make_task
+
+    task = make_task(task_name)
+    arr = np.asarray(starts, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape[1] != task.nx:
+        raise ValueError(f"{task_name}: starts must have shape (n, {task.nx}), got {arr.shape}")
+    if not np.all(np.isfinite(arr)):
+        bad = np.flatnonzero(~np.all(np.isfinite(arr), axis=1))
+        raise ValueError(f"{task_name}: starts contain NaN or inf (rows {bad[:10].tolist()})")
+    if taus is None:
+        tau_arr = np.full(arr.shape[0], task.tau_nominal)
+    else:
+        tau_arr = np.asarray(taus, dtype=np.float64).reshape(-1)
+        if tau_arr.shape[0] != arr.shape[0]:
+            raise ValueError(f"{task_name}: taus must have {arr.shape[0]} entries, got {tau_arr.shape[0]}")
+    for t in tau_arr:
+        task.check_tau(t)
+    return arr, tau_arr
+
+
+def _progress(total: int, enabled: bool, desc: str) -> Any:
+    from tqdm.auto import tqdm
+
+    return tqdm(total=total, disable=not enabled, desc=desc, unit="solve", smoothing=0.05)
+
+
+def solve_many(
+    task_name: str,
+    starts: np.ndarray,
+    taus: np.ndarray | None = None,
+    *,
+    workers: int = 1,
+    backend: str = "local",
+    progress: bool = True,
+    solver_options: dict | None = None,
+) -> list[SolveResult]:
+    """Solve paper Eq. 1 from every row of ``starts`` and return the results in input order.
+
+    Args:
+        task_name: registry name of the task (``"acrobot"``, ``"glider"``).
+        starts: ``(n, nx)`` start states.
+        taus: ``(n,)`` times to go (default: the task's nominal for every start).
+        workers: processes (``backend="local"``) or actors (``backend="ray"``); ``1`` solves in this process.
+        backend: ``"local"`` (process pool on this machine) or ``"ray"`` (needs ``pip install seagul[ray]``; connects to
+            ``RAY_ADDRESS`` or ``solver_options["ray_address"]`` if set, else starts a local Ray).
+        progress: show a tqdm progress bar.
+        solver_options: :class:`~seagul_learn.trajopt.TrajOptConfig` fields (e.g. ``{"solver": "ipopt"}``); the
+            key ``"ray_address"`` is read by the Ray backend and not passed on.
+
+    Returns:
+        One :class:`SolveResult` per start; a failed solve has ``success=False`` (never raises for a hard start).
+
+    Raises:
+        ValueError: bad shapes, NaN starts, a ``tau`` outside the task's range, unknown backend or options.
+    """
+    arr, tau_arr = _check_inputs(task_name, starts, taus)
+    options = dict(solver_options or {})
+    ray_address = options.pop("ray_address", None)
+    frozen = _freeze(options)
+    n = arr.shape[0]
+    if backend not in ("local", "ray"):
+        raise ValueError(f"unknown backend {backend!r}; use 'local' or 'ray'")
+    if workers < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    # Fail fast (in this process) on bad options rather than inside every worker.
+    from seagul_learn.trajopt import TrajOptConfig
+
+    TrajOptConfig().with_updates(**options).validate()
+    if n == 0:
+        return []
+    if backend == "ray":
+        return _solve_ray(task_name, frozen, arr, tau_arr, workers, progress, ray_address)
+    if workers == 1:
+        opt = _optimizer(task_name, frozen)
+        out: list[SolveResult] = []
+        with _progress(n, progress, f"{task_name} solves") as bar:
+            for x, t in zip(arr, tau_arr, strict=True):
+                out.append(opt.solve(x, float(t)))
+                bar.update(1)
+        return out
+    return _solve_local(task_name, frozen, arr, tau_arr, workers, progress)
+
+
+def _solve_local(
+    task_name: str,
+    frozen: tuple[tuple[str, Any], ...],
+    starts: np.ndarray,
+    taus: np.ndarray,
+    workers: int,
+    progress: bool,
+) -> list[SolveResult]:
+    # loky: spawned (not forked) workers that need no `if __name__ == "__main__"` guard in the caller's script, kept
+    # alive between calls (idle timeout) so each worker's cached optimizer is reused by the next batch.
+    from joblib.externals.loky import get_reusable_executor
+
+    n = starts.shape[0]
+    chunks = _chunks(n, workers, None)
+    results: list[SolveResult | None] = [None] * n
+    pool = get_reusable_executor(
+        max_workers=workers, timeout=300, initializer=_worker_init, env={v: "1" for v in _THREAD_VARS}
+    )
+    with _progress(n, progress, f"{task_name} solves x{workers}") as bar:
+        pending: dict[Future[list[SolveResult]], np.ndarray] = {}
+        queue = list(chunks)
+        # Bounded submission keeps memory flat for very large batches.
+        limit = 4 * workers
+
+        def submit_more() -> None:
+            while queue and len(pending) < limit:
+                idx = queue.pop(0)
+                pending[pool.submit(_solve_chunk, task_name, frozen, starts[idx], taus[idx])] = idx
+
+        submit_more()
+        while pending:
+            done, _ = wait(list(pending), return_when=FIRST_COMPLETED)
+            for fut in done:
+                idx = pending.pop(fut)
+                for i, res in zip(idx, fut.result(), strict=True):
+                    results[int(i)] = res
+                bar.update(len(idx))
+            submit_more()
+    return [r for r in results if r is not None]
+
+
+def _solve_ray(
+    task_name: str,
+    frozen: tuple[tuple[str, Any], ...],
+    starts: np.ndarray,
+    taus: np.ndarray,
+    workers: int,
+    progress: bool,
+    address: str | None,
+) -> list[SolveResult]:
+    try:
+        import ray
+    except ImportError as err:
+        raise ImportError(
+            "backend='ray' needs the optional Ray extra: pip install 'seagul[ray]' (or pip install ray)"
+        ) from err
+    if not ray.is_initialized():
+        address = address or os.environ.get("RAY_ADDRESS")
+        env = {"env_vars": {v: "1" for v in _THREAD_VARS}}
+        if address:
+            ray.init(address=address, runtime_env=env, ignore_reinit_error=True, log_to_driver=False)
+        else:
+            ray.init(num_cpus=workers, runtime_env=env, ignore_reinit_error=True, log_to_driver=False)
+
+    actor_cls = _ray_actor_class(ray)
+    n = starts.shape[0]
+    chunks = _chunks(n, workers, None)
+    actors = [actor_cls.remote(task_name, frozen) for _ in range(min(workers, len(chunks)))]
+    results: list[SolveResult | None] = [None] * n
+    queue = list(chunks)
+    in_flight: dict[Any, tuple[int, np.ndarray]] = {}
+
+    def submit(actor_i: int) -> None:
+        if queue:
+            idx = queue.pop(0)
+            ref = actors[actor_i].solve_chunk.remote(starts[idx], taus[idx])
+            in_flight[ref] = (actor_i, idx)
+
+    try:
+        with _progress(n, progress, f"{task_name} solves (ray x{len(actors)})") as bar:
+            for i in range(len(actors)):
+                submit(i)
+            while in_flight:
+                ready, _ = ray.wait(list(in_flight), num_returns=1)
+                ref = ready[0]
+                actor_i, idx = in_flight.pop(ref)
+                for i, res in zip(idx, ray.get(ref), strict=True):
+                    results[int(i)] = res
+                bar.update(len(idx))
+                submit(actor_i)
+    finally:
+        for a in actors:
+            with contextlib.suppress(Exception):
+                ray.kill(a)
+    return [r for r in results if r is not None]
+
+
+_RAY_ACTOR: Any = None
+
+
+def _ray_actor_class(ray: Any) -> Any:
+    """One solver per actor; a dead actor is restarted and its in-flight chunk re-run (deterministic, so safe)."""
+    global _RAY_ACTOR
+    if _RAY_ACTOR is None:
+
+        class _SolverActor:
+            def __init__(self, task_name: str, frozen: tuple[tuple[str, Any], ...]) -> None:
+                self.task_name = task_name
+                self.frozen = frozen
+                _worker_init()
+                _optimizer(task_name, frozen)
+
+            def solve_chunk(self, starts: np.ndarray, taus: np.ndarray) -> list[SolveResult]:
+                return _solve_chunk(self.task_name, self.frozen, starts, taus)
+
+            def pid(self) -> int:
+                return os.getpid()
+
+        _RAY_ACTOR = ray.remote(num_cpus=1, max_restarts=-1, max_task_retries=3)(_SolverActor)
+    return _RAY_ACTOR
+
+
+__all__ = ["solve_many"]

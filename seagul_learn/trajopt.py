@@ -1,0 +1,292 @@
+"""Full-horizon trajectory optimization (paper Eq. 1) with the value gradient from the duals (paper Eq. 5).
+
+:class:`TrajectoryOptimizer` builds its transcription(s) once and reuses them for every solve. One solve from
+``(x_init, tau)`` returns a :class:`~seagul_learn.results.SolveResult`: the value, ``dV/dx_init`` and ``dV/dtau``
+(parametric sensitivities ``-lam_p``, SPEC.md §1) and one label per knot (state, time to go, cost to go, ``dV_k/dx_k``
+from the defect multipliers).
+
+Robustness: a deterministic sequence of attempts (solver and initial guess) is tried until one succeeds, so the label
+of a start depends only on ``(x_init, tau)`` and the configuration, never on what was solved before (batch and
+parallel solving stay reproducible). The default sequence is the straight line from ``x_init`` to the goal, then
+"the goal everywhere", then a time-reversed line; see :class:`TrajOptConfig`.
+
+``grad_tau`` of a fixed-step task (the acrobot, ``h = tau / m``) is the sensitivity of ``V`` to stretching every
+step; it is not the derivative of a free-final-time value and the acrobot's ``T0`` is a single value anyway.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import time
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+import numpy as np
+
+from seagul_control.transcription import Transcription, TranscriptionSolution
+from seagul_envs.tasks import make_task
+from seagul_envs.tasks.base import Task
+from seagul_learn.results import SolveResult
+
+SolverName = Literal["ipopt", "fatrop"]
+GuessName = Literal["line", "goal", "hold"]
+
+GUESS_NAMES: tuple[str, ...] = ("line", "goal", "hold")
+
+
+@dataclass(frozen=True)
+class TrajOptConfig:
+    """Options of :class:`TrajectoryOptimizer` (hashable, so workers can cache one optimizer per configuration)."""
+
+    solver: SolverName = "ipopt"
+    """Solver of the first attempt."""
+    fallback_solver: SolverName = "ipopt"
+    """Solver of the fallback attempts (the first attempt's solver when equal)."""
+    guesses: tuple[str, ...] = ("line", "goal")
+    """Initial guesses of the first attempt and the fallbacks, tried in order until one succeeds:
+    ``"line"`` straight line from ``x_init`` to the goal, ``"goal"`` the goal at every knot,
+    ``"hold"`` ``x_init`` at every knot. Inputs start at zero, steps at ``tau / m``."""
+    multi_start: Literal["never", "on_suspect", "always"] = "never"
+    """Also solve from every guess in ``multi_start_guesses`` and keep the lowest value: ``"always"``, or
+    ``"on_suspect"`` when the first successful value exceeds ``suspect_value`` (a cheap guard against poor local
+    optima; see docs/trajopt.md for how often they occur)."""
+    multi_start_guesses: tuple[str, ...] = ("goal",)
+    """Extra guesses of the multi-start."""
+    suspect_value: float = float("inf")
+    """Value above which ``multi_start="on_suspect"`` triggers."""
+    tol: float = 1e-8
+    """Solver tolerance (IPOPT ``tol``, fatrop ``tol``)."""
+    acceptable_tol: float = 1e-6
+    """IPOPT ``acceptable_tol``."""
+    max_iter: int = 500
+    """Iteration limit per attempt."""
+    substeps: int | None = None
+    """RK4 substeps per interval (default: the task's)."""
+    horizon: int | None = None
+    """Number of intervals (default: the task's ``m``). A shorter horizon on a fixed-step task solves the tail problem
+    from a mid-trajectory knot (same step, ``tau`` may then be below ``T0``)."""
+    codegen: bool = True
+    """Compile the NLP functions to C (cached on disk) when a compiler is available."""
+    solver_options: tuple[tuple[str, Any], ...] = ()
+    """Extra options for every solver (e.g. ``(("ipopt.linear_solver", "mumps"),)``), merged last."""
+
+    def with_updates(self, **changes: Any) -> TrajOptConfig:
+        """A copy with some fields changed (``solver_options`` may be given as a dict)."""
+        if isinstance(changes.get("solver_options"), dict):
+            changes["solver_options"] = tuple(sorted(changes["solver_options"].items()))
+        if isinstance(changes.get("guesses"), list):
+            changes["guesses"] = tuple(changes["guesses"])
+        if isinstance(changes.get("multi_start_guesses"), list):
+            changes["multi_start_guesses"] = tuple(changes["multi_start_guesses"])
+        return dataclasses.replace(self, **changes)
+
+    def validate(self) -> None:
+        """Raise ValueError on unknown solver or guess names and bad numbers."""
+        for s in (self.solver, self.fallback_solver):
+            if s not in ("ipopt", "fatrop"):
+                raise ValueError(f"unknown solver {s!r}; use 'ipopt' or 'fatrop'")
+        if not self.guesses:
+            raise ValueError("guesses must name at least one initial guess")
+        for gname in (*self.guesses, *self.multi_start_guesses):
+            if gname not in GUESS_NAMES:
+                raise ValueError(f"unknown guess {gname!r}; use one of {GUESS_NAMES}")
+        if self.multi_start not in ("never", "on_suspect", "always"):
+            raise ValueError(f"unknown multi_start {self.multi_start!r}")
+        if self.max_iter < 1 or self.tol <= 0:
+            raise ValueError("max_iter must be >= 1 and tol > 0")
+
+
+@dataclass
+class _Attempt:
+    label: str
+    sol: TranscriptionSolution
+
+
+@dataclass
+class _Counters:
+    solves: int = 0
+    fallbacks: int = 0
+    failures: int = 0
+    statuses: dict[str, int] = field(default_factory=dict)
+
+
+class TrajectoryOptimizer:
+    """Solves paper Eq. 1 from many starts with solvers built once.
+
+    Args:
+        task: a :class:`Task` or its registry name.
+        config: a :class:`TrajOptConfig`; keyword ``options`` override its fields
+            (e.g. ``TrajectoryOptimizer("acrobot", solver="fatrop", guesses=("line",))``).
+    """
+
+    def __init__(self, task: Task | str, config: TrajOptConfig | None = None, **options: Any) -> None:
+        self.task: Task = make_task(task) if isinstance(task, str) else task
+        cfg = config or TrajOptConfig()
+        if options:
+            unknown = set(options) - {f.name for f in dataclasses.fields(TrajOptConfig)}
+            if unknown:
+                raise ValueError(f"unknown TrajectoryOptimizer options {sorted(unknown)}")
+            cfg = cfg.with_updates(**options)
+        cfg.validate()
+        self.config = cfg
+        self.horizon = self.task.num_steps if cfg.horizon is None else int(cfg.horizon)
+        self._transcriptions: dict[str, Transcription] = {}
+        self.counters = _Counters()
+        # Build the first solver now (fail early on bad options); fallbacks are built on first use.
+        self._transcription(cfg.solver)
+
+    # ---------------------------------------------------------------- solvers
+    def _solver_options(self, solver: str) -> dict[str, Any]:
+        cfg = self.config
+        if solver == "ipopt":
+            opts: dict[str, Any] = {
+                "ipopt.tol": cfg.tol,
+                "ipopt.acceptable_tol": cfg.acceptable_tol,
+                "ipopt.max_iter": cfg.max_iter,
+            }
+        else:
+            opts = {"fatrop.tol": cfg.tol, "fatrop.max_iter": cfg.max_iter}
+        opts.update(dict(cfg.solver_options))
+        return opts
+
+    def _transcription(self, solver: str) -> Transcription:
+        if solver not in self._transcriptions:
+            self._transcriptions[solver] = Transcription(
+                self.task,
+                self.horizon,
+                substeps=self.config.substeps,
+                solver=solver,  # type: ignore[arg-type]
+                solver_options=self._solver_options(solver),
+            )
+        return self._transcriptions[solver]
+
+    # ---------------------------------------------------------------- guesses
+    def guess(self, name: str, x_init: np.ndarray, tau: float, solver: str | None = None) -> np.ndarray:
+        """The primal initial guess called ``name`` (see :attr:`TrajOptConfig.guesses`); depends only on inputs."""
+        tr = self._transcription(solver or self.config.solver)
+        if name == "line":
+            return tr.line_guess(x_init, tau)
+        if name == "goal":
+            return tr.line_guess(self.task.goal, tau)
+        if name == "hold":
+            return tr.line_guess(x_init, tau, target=x_init)
+        raise ValueError(f"unknown guess {name!r}; use one of {GUESS_NAMES}")
+
+    def _plan(self) -> list[tuple[str, str]]:
+        cfg = self.config
+        plan = [(cfg.solver, cfg.guesses[0])]
+        plan += [(cfg.fallback_solver, g) for g in cfg.guesses[1:]]
+        if cfg.solver != cfg.fallback_solver:
+            # The fast solver's failure is often the solver's, not the guess's: retry its first guess too.
+            plan.insert(1, (cfg.fallback_solver, cfg.guesses[0]))
+        return plan
+
+    # ------------------------------------------------------------------ solve
+    def check_inputs(self, x_init: Any, tau: Any = None) -> tuple[np.ndarray, float]:
+        """Validate ``(x_init, tau)``; raise ValueError naming the problem."""
+        x = self.task.check_state(x_init, "x_init")
+        tau_v = self.task.tau_nominal if tau is None else tau
+        shorter = self.horizon != self.task.num_steps
+        tau_f = self.task.check_tau(tau_v, allow_shorter=shorter)
+        if tau_f <= 0.0:
+            raise ValueError(f"{self.task.name}: time to go must be positive, got {tau_f}")
+        return x, tau_f
+
+    def solve(self, x_init: Any, tau: float | None = None) -> SolveResult:
+        """Solve from ``x_init`` with time to go ``tau`` (default the task's nominal).
+
+        Never raises for an infeasible or hard start: the result then has ``success=False`` and the last status.
+
+        Raises:
+            ValueError: ``x_init`` is not a finite ``(nx,)`` vector or ``tau`` is outside the task's range.
+        """
+        x, tau_f = self.check_inputs(x_init, tau)
+        start = time.perf_counter()
+        attempts: list[_Attempt] = []
+        best: _Attempt | None = None
+        for solver, gname in self._plan():
+            att = self._attempt(solver, gname, x, tau_f)
+            attempts.append(att)
+            if att.sol.success:
+                best = att
+                break
+        cfg = self.config
+        if best is not None and (
+            cfg.multi_start == "always" or (cfg.multi_start == "on_suspect" and best.sol.objective > cfg.suspect_value)
+        ):
+            tried = {a.label for a in attempts}
+            for gname in cfg.multi_start_guesses:
+                label = f"{cfg.fallback_solver}:{gname}"
+                if label in tried:
+                    continue
+                att = self._attempt(cfg.fallback_solver, gname, x, tau_f)
+                attempts.append(att)
+                # Strictly lower by a margin, so ties keep the deterministic first choice.
+                if att.sol.success and att.sol.objective < best.sol.objective - 1e-6 * (1 + abs(best.sol.objective)):
+                    best = att
+        elapsed = time.perf_counter() - start
+        final = best if best is not None else attempts[-1]
+        self.counters.solves += 1
+        self.counters.fallbacks += int(len(attempts) > 1)
+        self.counters.failures += int(best is None)
+        status = final.sol.status
+        self.counters.statuses[status] = self.counters.statuses.get(status, 0) + 1
+        return self._result(
+            x,
+            tau_f,
+            final.sol,
+            success=best is not None,
+            iterations=sum(a.sol.iterations for a in attempts),
+            solve_time=elapsed,
+            labels=[a.label for a in attempts],
+            transcription=self._transcription(final.label.split(":")[0]),
+        )
+
+    def _attempt(self, solver: str, gname: str, x: np.ndarray, tau: float) -> _Attempt:
+        tr = self._transcription(solver)
+        sol = tr.solve(x, tau, guess=self.guess(gname, x, tau, solver))
+        return _Attempt(f"{solver}:{gname}", sol)
+
+    def _result(
+        self,
+        x: np.ndarray,
+        tau: float,
+        sol: TranscriptionSolution,
+        *,
+        success: bool,
+        iterations: int,
+        solve_time: float,
+        labels: list[str],
+        transcription: Transcription,
+    ) -> SolveResult:
+        nx = self.task.nx
+        steps = np.asarray(sol.steps, dtype=float)
+        stage = transcription.stage_costs(sol.states, sol.controls, steps)
+        terminal = self.task.terminal_cost_value(sol.states[-1])
+        # cost_to_go[k] = sum_{i>=k} h_i l(x_i, u_i) + l_f(x_m); its first entry is the value.
+        cost_to_go = np.concatenate([np.cumsum(stage[::-1])[::-1], [0.0]]) + terminal
+        elapsed = np.concatenate([[0.0], np.cumsum(steps)])
+        time_to_go = tau - elapsed
+        time_to_go[0], time_to_go[-1] = tau, 0.0  # exact ends: sum(h) = tau holds to the solver's tolerance
+        time_to_go = np.maximum(time_to_go, 0.0)
+        grad_x = np.asarray(sol.param_sensitivity[:nx], dtype=float)
+        grad_tau = float(sol.param_sensitivity[nx])
+        knot_grads = np.vstack([grad_x[None, :], np.asarray(sol.defect_multipliers, dtype=float)])
+        return SolveResult(
+            x_init=x.copy(),
+            tau=tau,
+            success=success,
+            status=sol.status,
+            value=float(cost_to_go[0]) if success else float("nan"),
+            grad_x=grad_x,
+            grad_tau=grad_tau,
+            states=np.asarray(sol.states, dtype=float),
+            controls=np.asarray(sol.controls, dtype=float),
+            steps=steps,
+            time_to_go=time_to_go,
+            cost_to_go=cost_to_go,
+            knot_grads=knot_grads,
+            iterations=iterations,
+            solve_time=solve_time,
+            attempts=labels,
+        )
