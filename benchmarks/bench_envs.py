@@ -149,6 +149,58 @@ def accuracy(samples: int, seed: int = 0) -> dict[str, float]:
     }
 
 
+def kernel_choices(n: int) -> dict[str, float]:
+    """Microseconds per evaluation of the acrobot's one-period kernel ``(x, u) -> (x_next, l)``, three ways.
+
+    ``call``: ``Function.__call__`` (DM conversions); ``buffer``: the FunctionBuffer the env uses; ``compiled``:
+    the same Function generated to C, built with the system C compiler (``cc -O2``) and loaded with
+    ``casadi.external``, through a FunctionBuffer (measured only if a compiler is found; not used by the env).
+    """
+    import os
+    import shutil
+    import subprocess
+    import tempfile
+
+    from seagul_envs.envs.base import BufferedFunction, step_function
+
+    task = make_task("acrobot")
+    f = step_function(task, task.control_period)
+    x, u = task.goal + 0.1, np.array([1.0])
+
+    def per_call(fn: Callable[[], Any]) -> float:
+        fn()
+        best = float("inf")
+        for _ in range(5):
+            start = time.perf_counter()
+            for _ in range(n):
+                fn()
+            best = min(best, (time.perf_counter() - start) / n)
+        return 1e6 * best
+
+    out = {"call": per_call(lambda: f(x, u))}
+    buffered = BufferedFunction(f)
+    buffered.args[0][:], buffered.args[1][:] = x, u
+    out["buffer"] = per_call(buffered)
+    compiler = shutil.which("cc") or shutil.which("gcc")
+    if compiler:
+        with tempfile.TemporaryDirectory() as tmp:
+            cwd = os.getcwd()
+            os.chdir(tmp)  # Function.generate writes into the working directory
+            try:
+                f.generate("kernel.c")
+                start = time.perf_counter()
+                subprocess.run([compiler, "-O2", "-shared", "-fPIC", "kernel.c", "-o", "kernel.so"], check=True)
+                out["compile_s"] = time.perf_counter() - start
+                compiled = BufferedFunction(casadi.external(f.name(), os.path.join(tmp, "kernel.so")))
+            finally:
+                os.chdir(cwd)
+            compiled.args[0][:], compiled.args[1][:] = x, u
+            out["compiled"] = per_call(compiled)
+            buffered()
+            out["compiled_max_diff"] = float(np.abs(compiled.res[0] - buffered.res[0]).max())
+    return out
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--reps", type=int, default=15, help="interleaved repetitions (median reported)")
@@ -177,10 +229,25 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
         f"SeagulAcrobot-v0 (RK4 substeps <= {acc['SeagulAcrobot-v0_max_substep'] * 1e3:g} ms over "
         f"{acc['SeagulAcrobot-v0_dt']} s) {acc['SeagulAcrobot-v0_step_error']:.1e}"
     )
+    kernels = kernel_choices(n=500 if args.quick else 5000)
+    print(
+        "acrobot kernel (x, u) -> (x_next, l), us per evaluation: "
+        + ", ".join(f"{k} {v:.3g}" for k, v in kernels.items() if k in ("call", "buffer", "compiled"))
+        + ("" if "compiled" in kernels else " (no C compiler: compiled path not measured)")
+        + (f"; C build {kernels['compile_s']:.2f} s" if "compile_s" in kernels else "")
+    )
     ours = results["SeagulAcrobot-v0"]["ratio_to_acrobot_v1"]
     verdict = "meets" if ours >= 1.0 else "MISSES"
     print(f"goal (SeagulAcrobot-v0 at least as fast per step as Acrobot-v1): {verdict} ({ours:.2f}x)")
-    summary = {"machine": info, "reps": reps, "steps": steps, "envs": results, "accuracy": acc, "goal_met": ours >= 1}
+    summary = {
+        "machine": info,
+        "reps": reps,
+        "steps": steps,
+        "envs": results,
+        "accuracy": acc,
+        "kernel_us": kernels,
+        "goal_met": ours >= 1,
+    }
     print(json.dumps(summary, sort_keys=True))
     return summary
 
