@@ -1,1 +1,27 @@
 """seagul_learn: trajectory optimization with dual gradients, SEAGuL sampling, value networks, training, CLI."""
+
+from __future__ import annotations
+
+import importlib
+from typing import Any
+
+# Public names, imported lazily so that `import seagul_learn` stays cheap (no torch or solver stack until used).
+_LAZY: dict[str, str] = {
+    "ValueNetwork": "seagul_learn.value_network",
+    "Dataset": "seagul_learn.dataset",
+    "SolveRecord": "seagul_learn.dataset",
+    "UniformSampler": "seagul_learn.samplers",
+    "AdversarialSampler": "seagul_learn.samplers",
+    "AdversarialOptions": "seagul_learn.samplers",
+    "TrainConfig": "seagul_learn.training",
+    "train": "seagul_learn.training",
+}
+
+
+def __getattr__(name: str) -> Any:
+    if name in _LAZY:
+        return getattr(importlib.import_module(_LAZY[name]), name)
+    raise AttributeError(f"module 'seagul_learn' has no attribute {name!r}")
+
+
+__all__ = sorted(_LAZY)
