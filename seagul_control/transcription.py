@@ -1,23 +1,41 @@
 """The one NLP builder: direct multiple-shooting transcription of paper Eq. 1 (full horizon) and Eq. 3 (MPC).
 
-Decision variables are ordered stage by stage, ``(x_k, u_k[, h_k])`` for ``k = 0..n-1`` then ``x_n``, and so are the
-constraints (stage 0: ``x_0 - x_init = 0``; stage k: the defect ``x_{k+1} - F(x_k, u_k, h_k) = 0``, the form
-fatrop requires; then the time constraint), so that the structure-exploiting ``fatrop`` solver can detect the
-optimal-control structure; IPOPT solves the same NLP. ``x_init``, ``tau`` and the terminal-cost parameters
-``theta`` are NLP *parameters*: a solver is built once and reused for every start, time to go and value network.
+Decision variables are ordered stage by stage, ``(x_k[, t_k], u_k[, h_k])`` for ``k = 0..n-1`` then
+``x_n[, t_n]``, and so are the constraints (stage 0: ``x_0 - x_init = 0``; stage k: the defect
+``x_{k+1} - F(x_k, u_k, h_k) = 0``, the form fatrop requires; then the time constraint), so that the
+structure-exploiting ``fatrop`` solver can detect the optimal-control structure; IPOPT solves the same NLP.
+``x_init``, ``tau`` and the terminal-cost parameters ``theta`` are NLP *parameters*: a solver is built once and
+reused for every start, time to go and value network.
 
-Time: with ``free_time`` the steps ``h_k`` are decision variables in ``step_bounds`` and the elapsed time is the sum
-of the steps; ``time_mode`` says how the horizon meets ``tau``: ``"equal"`` (``sum(h) = tau``, the full-horizon
-problem), ``"at_most"`` (``sum(h) <= tau``) or ``"free"``. For a fixed step, ``h_k = tau / n`` (``step=None``, the
+Time: with ``free_time`` the steps ``h_k`` are decision variables in ``step_bounds`` and the elapsed time is carried
+as an extra state ``t_k`` (``t_0 = 0``, ``t_{k+1} = t_k + h_k``), so that ``sum(h) = tau`` is a constraint of the
+last stage only and the NLP stays stage-wise (fatrop cannot take a constraint that couples every stage);
+``time_mode`` says how the horizon meets ``tau``: ``"equal"`` (``sum(h) = tau``, the full-horizon problem),
+``"at_most"`` (``sum(h) <= tau``) or ``"free"``. For a fixed step, ``h_k = tau / n`` (``step=None``, the
 full-horizon problem) or a given constant (the MPC's control period).
 
 The terminal cost is a CasADi Function ``(x_n, tau_remaining, theta) -> scalar``; by default the task's ``l_f``.
+
+Speed: the NLP is built as an MX graph that *calls* the per-interval integrator (one small SX function), so its
+derivatives are per-stage functions too. By default (``codegen=False``) CasADi expands it to SX and interprets it,
+as before. With ``codegen=True`` the solver's functions (``nlp_f``, ``nlp_g``, their derivatives, ``nlp_hess_l``) are
+generated as C once, compiled with the system C compiler into ``$SEAGUL_CACHE_DIR`` (default
+``~/.cache/seagul/casadi``) under a hash of the generated source, and loaded from there: a new process with the same
+problem only regenerates the source (~0.1 s) and loads the library. Without a compiler it falls back to the
+interpreted solver with a warning. Measured gains are in docs/trajopt.md.
 """
 
 from __future__ import annotations
 
+import hashlib
+import os
+import shutil
+import subprocess
+import tempfile
 import time
+import warnings
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any, Literal
 
 import casadi as ca
@@ -27,8 +45,12 @@ from seagul_envs.tasks.base import Task
 
 TimeMode = Literal["equal", "at_most", "free"]
 
-#: IPOPT statuses we accept as a (locally) optimal solution.
+#: IPOPT statuses we accept as a (locally) optimal solution (fatrop reports success through ``stats()["success"]``).
 SUCCESS_STATUSES = frozenset({"Solve_Succeeded", "Solved_To_Acceptable_Level", "Success"})
+
+#: Flags of the cached C compilation: ``-O1`` compiles the ~1.5 MB generated source in about half the time of
+#: ``-O2`` for the same solve speed (measured on the acrobot, docs/trajopt.md).
+CODEGEN_FLAGS: tuple[str, ...] = ("-O1", "-fPIC", "-shared")
 
 
 @dataclass
@@ -73,12 +95,73 @@ def default_ipopt_options() -> dict[str, Any]:
         "ipopt.max_iter": 500,
         "ipopt.mu_strategy": "adaptive",
         "print_time": False,
+        # An exploratory iterate may overflow the dynamics (a NaN/Inf step is rejected and retried by the solver).
+        "show_eval_warnings": False,
     }
 
 
 def default_fatrop_options() -> dict[str, Any]:
     """Quiet fatrop settings (structure detected from the stage-wise variable and constraint order)."""
-    return {"fatrop.print_level": 0, "print_time": False, "structure_detection": "auto", "fatrop.max_iter": 500}
+    return {
+        "fatrop.print_level": 0,
+        "print_time": False,
+        "structure_detection": "auto",
+        "fatrop.max_iter": 500,
+        "show_eval_warnings": False,
+    }
+
+
+def codegen_cache_dir() -> Path:
+    """``$SEAGUL_CACHE_DIR`` or ``~/.cache/seagul/casadi`` (shared with the MPC's JIT cache)."""
+    env = os.environ.get("SEAGUL_CACHE_DIR")
+    return Path(env) if env else Path.home() / ".cache" / "seagul" / "casadi"
+
+
+def find_c_compiler() -> str | None:
+    """A C compiler on PATH (``$CC``, gcc, cc, clang) or None."""
+    for name in (os.environ.get("CC"), "gcc", "cc", "clang"):
+        if name and shutil.which(name):
+            return shutil.which(name)
+    return None
+
+
+def compile_nlp_library(solver: ca.Function, name: str, cache_dir: Path | None = None) -> Path:
+    """Generate C for the NLP functions of ``solver``, compile them once per distinct source, return the library.
+
+    The cache key is a hash of the generated source, the compiler and its flags (and the CasADi version, which shapes
+    the generated code), so a changed model or option never loads a stale library. Writes are atomic (temporary
+    file then rename), so concurrent processes building the same problem are safe.
+
+    Raises:
+        RuntimeError: no C compiler, or the compilation failed.
+    """
+    cc = find_c_compiler()
+    if cc is None:
+        raise RuntimeError("no C compiler found (set $CC or install gcc)")
+    cache = codegen_cache_dir() if cache_dir is None else Path(cache_dir)
+    cache.mkdir(parents=True, exist_ok=True)
+    with tempfile.TemporaryDirectory(prefix="seagul_codegen_", dir=cache) as tmp:
+        # CasADi writes the generated file into the working directory and wants a bare C identifier as its name.
+        cwd = os.getcwd()
+        try:
+            os.chdir(tmp)
+            solver.generate_dependencies(f"{name}.c")
+        finally:
+            os.chdir(cwd)
+        src = Path(tmp) / f"{name}.c"
+        digest = hashlib.sha256()
+        for part in (ca.__version__, cc, *CODEGEN_FLAGS):
+            digest.update(part.encode() + b"\0")
+        digest.update(src.read_bytes())
+        lib = cache / f"{name}_{digest.hexdigest()[:20]}.so"
+        if lib.is_file():
+            return lib
+        out = Path(tmp) / f"{name}.so"
+        proc = subprocess.run([cc, *CODEGEN_FLAGS, str(src), "-o", str(out), "-lm"], capture_output=True, text=True)
+        if proc.returncode != 0:
+            raise RuntimeError(f"compiling {src.name} failed: {proc.stderr[-2000:]}")
+        os.replace(out, lib)
+    return lib
 
 
 class Transcription:
@@ -97,6 +180,9 @@ class Transcription:
         substeps: RK4 substeps per interval (default: the task's).
         solver: ``"ipopt"`` or ``"fatrop"``.
         solver_options: options merged over the defaults of that solver.
+        codegen: compile the NLP functions to C (cached on disk; see the module docstring); falls back to the
+            interpreted solver with a warning when no compiler works.
+        codegen_dir: cache directory of the compiled libraries (default :func:`codegen_cache_dir`).
     """
 
     def __init__(
@@ -114,6 +200,8 @@ class Transcription:
         substeps: int | None = None,
         solver: Literal["ipopt", "fatrop"] = "ipopt",
         solver_options: dict[str, Any] | None = None,
+        codegen: bool = False,
+        codegen_dir: str | os.PathLike[str] | None = None,
     ) -> None:
         n = task.num_steps if horizon is None else int(horizon)
         if n < 1:
@@ -139,16 +227,18 @@ class Transcription:
             terminal_cost = ca.Function("task_terminal", [xs, ts, th], [task.terminal_cost(xs)])
         self.terminal_cost = terminal_cost
 
-        x_init = ca.SX.sym("x_init", nx)
-        tau = ca.SX.sym("tau")
-        theta = ca.SX.sym("theta", self.n_theta)
+        # MX graph calling the per-interval integrator: with codegen its derivatives stay per-stage functions
+        # (compact C); without, ``expand`` turns it into the same flat SX graph as a direct SX build.
+        x_init = ca.MX.sym("x_init", nx)
+        tau = ca.MX.sym("tau")
+        theta = ca.MX.sym("theta", self.n_theta)
         p = ca.vertcat(x_init, tau, theta)
         F = task.rk4_step(self.substeps)
 
-        w: list[ca.SX] = []
+        w: list[ca.MX] = []
         lbw: list[np.ndarray] = []
         ubw: list[np.ndarray] = []
-        g: list[ca.SX] = []
+        g: list[ca.MX] = []
         lbg: list[np.ndarray] = []
         ubg: list[np.ndarray] = []
         equality: list[bool] = []
@@ -156,54 +246,75 @@ class Transcription:
         self._x_idx: list[np.ndarray] = []
         self._u_idx: list[np.ndarray] = []
         self._h_idx: list[int] = []
+        self._t_idx: list[int] = []
         self._defect_rows: list[np.ndarray] = []
+        n_w = 0
+        n_g = 0
 
-        def add_var(sym: ca.SX, lo: np.ndarray, hi: np.ndarray) -> np.ndarray:
-            start = sum(int(v.numel()) for v in w)
+        def add_var(sym: ca.MX, lo: np.ndarray | float, hi: np.ndarray | float) -> np.ndarray:
+            nonlocal n_w
             w.append(sym)
             lbw.append(np.broadcast_to(lo, (sym.numel(),)).astype(float))
             ubw.append(np.broadcast_to(hi, (sym.numel(),)).astype(float))
-            return np.arange(start, start + sym.numel())
+            n_w += sym.numel()
+            return np.arange(n_w - sym.numel(), n_w)
 
-        def add_con(expr: ca.SX, lo: np.ndarray | float, hi: np.ndarray | float) -> np.ndarray:
-            start = sum(int(c.numel()) for c in g)
+        def add_con(expr: ca.MX, lo: np.ndarray | float, hi: np.ndarray | float) -> np.ndarray:
+            nonlocal n_g
             g.append(expr)
             lo_arr = np.broadcast_to(lo, (expr.numel(),)).astype(float)
             hi_arr = np.broadcast_to(hi, (expr.numel(),)).astype(float)
             lbg.append(lo_arr)
             ubg.append(hi_arr)
             equality.extend(bool(v) for v in (lo_arr == hi_arr))
-            return np.arange(start, start + expr.numel())
+            n_g += expr.numel()
+            return np.arange(n_g - expr.numel(), n_g)
 
-        objective = 0
-        elapsed = 0
+        objective: ca.MX = ca.MX(0)
         fixed_h = (tau / n) if self.step is None else self.step
-        x_k = ca.SX.sym("x_0", nx)
+        x_k = ca.MX.sym("x_0", nx)
         self._x_idx.append(add_var(x_k, -np.inf, np.inf))
-        add_con(x_k - x_init, 0.0, 0.0)
+        if self.free_time:
+            # Elapsed time as a state (see the module docstring); t_0 = 0 is a stage-0 constraint, not a fixed bound.
+            t_k = ca.MX.sym("t_0")
+            self._t_idx.append(int(add_var(t_k, -np.inf, np.inf)[0]))
+            add_con(ca.vertcat(x_k - x_init, t_k), 0.0, 0.0)
+        else:
+            add_con(x_k - x_init, 0.0, 0.0)
         for k in range(n):
-            u_k = ca.SX.sym(f"u_{k}", nu)
+            u_k = ca.MX.sym(f"u_{k}", nu)
             self._u_idx.append(add_var(u_k, task.u_low, task.u_high))
             if self.free_time:
-                h_k = ca.SX.sym(f"h_{k}")
+                h_k = ca.MX.sym(f"h_{k}")
                 self._h_idx.append(int(add_var(h_k, self.step_bounds[0], self.step_bounds[1])[0]))
             else:
                 h_k = fixed_h
             objective = objective + h_k * task.stage_cost(x_k, u_k)
-            elapsed = elapsed + h_k
-            x_next = ca.SX.sym(f"x_{k + 1}", nx)
+            x_next = ca.MX.sym(f"x_{k + 1}", nx)
             last = k == n - 1
             lo = np.maximum(task.x_low, task.x_final_low) if (last and final_box) else task.x_low
             hi = np.minimum(task.x_high, task.x_final_high) if (last and final_box) else task.x_high
             self._x_idx.append(add_var(x_next, lo, hi))
             # fatrop's structure detection requires gap-closing rows written as x_{k+1} - F(x_k, u_k).
-            self._defect_rows.append(add_con(x_next - F(x_k, u_k, h_k), 0.0, 0.0))
+            if self.free_time:
+                t_next = ca.MX.sym(f"t_{k + 1}")
+                self._t_idx.append(int(add_var(t_next, -np.inf, np.inf)[0]))
+                rows = add_con(ca.vertcat(x_next - F(x_k, u_k, h_k), t_next - (t_k + h_k)), 0.0, 0.0)
+                self._defect_rows.append(rows[:nx])
+                t_k = t_next
+            else:
+                self._defect_rows.append(add_con(x_next - F(x_k, u_k, h_k), 0.0, 0.0))
             x_k = x_next
-        if self.free_time and time_mode == "equal":
-            self._time_row = int(add_con(elapsed - tau, 0.0, 0.0)[0])
-        elif self.free_time and time_mode == "at_most":
-            self._time_row = int(add_con(elapsed - tau, -np.inf, 0.0)[0])
+        if self.free_time:
+            elapsed = t_k
+            if time_mode == "equal":
+                self._time_row = int(add_con(t_k - tau, 0.0, 0.0)[0])
+            elif time_mode == "at_most":
+                self._time_row = int(add_con(t_k - tau, -np.inf, 0.0)[0])
+            else:
+                self._time_row = -1
         else:
+            elapsed = n * fixed_h
             self._time_row = -1
         objective = objective + terminal_cost(x_k, tau - elapsed, theta)
 
@@ -217,7 +328,22 @@ class Transcription:
             options = {**default_ipopt_options(), "expand": True, **(solver_options or {})}
         else:
             options = {**default_fatrop_options(), "expand": True, "equality": equality, **(solver_options or {})}
-        self._solver = ca.nlpsol(f"{task.name}_{solver}_n{n}", solver, nlp, options)
+        name = f"{task.name}_{solver}_n{n}"
+        self.codegen_library: Path | None = None
+        self._solver: ca.Function | None = None
+        if codegen:
+            try:
+                # Unexpanded: the generated C then holds one function per stage-level derivative, not n copies.
+                plain = ca.nlpsol(name, solver, nlp, {**options, "expand": False})
+                self.codegen_library = compile_nlp_library(plain, name, codegen_dir)
+                lib_options = {k: v for k, v in options.items() if k != "expand"}
+                self._solver = ca.nlpsol(name, solver, str(self.codegen_library), lib_options)
+            except (RuntimeError, OSError) as exc:
+                warnings.warn(f"{name}: code generation unavailable ({exc}); solving interpreted", stacklevel=2)
+                self.codegen_library = None
+                self._solver = None
+        if self._solver is None:
+            self._solver = ca.nlpsol(name, solver, nlp, options)
         # Stage costs and elapsed time of a solution, for per-knot labels.
         self._stage_cost_fn = task.stage_cost.map(n)
 
@@ -245,6 +371,7 @@ class Transcription:
         if self.free_time:
             h = np.full(self.horizon, float(np.mean(self.step_bounds))) if steps is None else np.asarray(steps)
             w0[self._h_idx] = h
+            w0[self._t_idx] = np.concatenate([[0.0], np.cumsum(h)])
         return w0
 
     def line_guess(self, x_init: np.ndarray, tau: float, target: np.ndarray | None = None) -> np.ndarray:
@@ -298,6 +425,9 @@ class Transcription:
             steps = np.full(self.horizon, tau / self.horizon if self.step is None else self.step)
         status = str(stats.get("return_status", "unknown"))
         success = bool(stats.get("success", False)) or status in SUCCESS_STATUSES
+        if self.solver_name == "fatrop":
+            # fatrop returns a bare integer code; name it so results read alike across solvers.
+            status = "Success" if success else f"fatrop_{stats.get('unified_return_status', 'error')}_{status}"
         return TranscriptionSolution(
             success=success and bool(np.all(np.isfinite(w))),
             status=status,
