@@ -460,6 +460,8 @@ def train(
 
 def _prepare_run_dir(out: Path, config: TrainConfig, resume: bool) -> None:
     config_path = out / "config.json"
+    if out.exists() and not out.is_dir():
+        raise FileExistsError(f"run directory {str(out)!r} is a file, not a directory; choose a directory for the run")
     if config_path.is_file():
         if not resume:
             raise FileExistsError(
