@@ -187,6 +187,8 @@ class Dataset:
             return dataset
         if task_name is None:
             raise DatasetError(f"{str(path)!r} is not a seagul dataset (no dataset.json)")
+        if path.exists() and not path.is_dir():
+            raise DatasetError(f"cannot create a dataset at {str(path)!r}: it is a file, not a directory")
         if path.exists() and any(path.iterdir()):
             raise DatasetError(f"cannot create a dataset in {str(path)!r}: the directory exists and is not empty")
         (path / "records").mkdir(parents=True, exist_ok=True)
