@@ -193,6 +193,8 @@ class ValueNetwork(nn.Module):
     def load(cls, path: str | os.PathLike[str]) -> ValueNetwork:
         """Read a file written by :meth:`save`; raises :class:`ValueNetworkFileError` naming the file and problem."""
         path = Path(path)
+        if path.is_dir():
+            raise ValueNetworkFileError(f"{str(path)!r} is a directory, not a value network file")
         if not path.is_file():
             raise ValueNetworkFileError(f"value network file {str(path)!r} does not exist")
         try:
