@@ -215,3 +215,53 @@ def test_sobolev_term_matches_its_definition():
 def test_bad_config_is_named(tmp_path, override, message):
     with pytest.raises(ValueError, match=message):
         _config(tmp_path, **override)
+
+
+_CHILD = """
+import sys, time
+sys.path.insert(0, {tests!r})
+import numpy as np
+from toy_problem import ToySolver
+from seagul_envs import make_task
+from seagul_learn.training import TrainConfig, train
+
+class SlowToy(ToySolver):
+    def solve(self, x, tau=None):
+        time.sleep(0.02)
+        return super().solve(x, tau)
+
+config = TrainConfig(**{config!r})
+train(config, {out!r}, resume=True, batch_solver=SlowToy(make_task("acrobot"), fail_above=np.pi + 0.25),
+      solver_name="toy")
+"""
+
+
+@pytest.mark.parametrize(
+    "kill_at", [pytest.param(3, marks=pytest.mark.slow), 9, pytest.param(14, marks=pytest.mark.slow)]
+)
+def test_sigkill_at_any_moment_then_resume_matches(tmp_path, kill_at):
+    """A real process killed with SIGKILL (no cleanup at all) resumes to the same dataset and weights."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    from pathlib import Path
+
+    reference = _run(tmp_path, "ref", sampler="adversarial")  # also fills the validation cache
+    config = _config(tmp_path, sampler="adversarial").to_dict()
+    out = tmp_path / "killed"
+    script = _CHILD.format(tests=str(Path(__file__).parent), config=config, out=str(out))
+    child = subprocess.Popen([sys.executable, "-c", script], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    records = out / "dataset" / "records"
+    deadline = time.monotonic() + 60
+    while time.monotonic() < deadline and child.poll() is None:
+        if records.is_dir() and len(list(records.glob("solve-*.npz"))) >= kill_at:
+            break
+        time.sleep(0.005)
+    assert child.poll() is None, child.stderr.read().decode() if child.stderr else ""
+    os.kill(child.pid, signal.SIGKILL)
+    child.wait()
+    resumed = _run(tmp_path, "killed", resume=True, sampler="adversarial")
+    _assert_same_datasets(reference.dataset, resumed.dataset)
+    np.testing.assert_array_equal(_weights(reference.network), _weights(resumed.network))
