@@ -1,0 +1,804 @@
+"""Limited-lookahead MPC (paper Eq. 3) with a learned terminal cost, and the full-horizon MPC reference.
+
+Both controllers follow stable-baselines3's predictor protocol, ``predict(observation, state=None,
+episode_start=None, deterministic=True) -> (actions, state)``, on the seagul envs' observations ``[x, time_to_go]``
+(one ``(nx + 1,)`` or a batch ``(n_envs, nx + 1)``), so SB3's ``evaluate_policy`` runs them on a ``DummyVecEnv``.
+
+**Problem.** The one NLP builder (:class:`~seagul_control.transcription.Transcription`) with ``n`` intervals,
+``x_0 = x_now`` and terminal cost ``Vhat(x_n, tau_now - sum(h))``. The value function enters as its CasADi form
+``(x, tau, theta) -> V`` with ``theta`` an NLP *parameter*: swapping in a newly trained network of the same
+architecture (:meth:`LimitedLookaheadMPC.set_value_function`) never rebuilds a solver.
+
+**End of the episode.** ``theta`` carries a switch ``s``: the terminal cost is ``s * Vhat_guarded + (1 - s) * l_f``.
+
+* Fixed-step tasks (acrobot, ``h = dt``): ``s = 0`` once ``tau_now - n dt <= 0`` (the task's ``l_f``, the DARE
+  quadratic, is then the right tail cost; the lookahead may pass the episode end by < n steps, harmlessly).
+* Free-time tasks (glider): while ``tau_now > n * dt`` the lookahead problem has ``h_k`` in the task's step bounds
+  and ``sum(h) <= tau_now``; after that a **final-phase problem built once** takes over: ``n`` steps with
+  ``sum(h) = tau_now`` exactly, ``h_k in [0, h_max]``, the task's terminal box and ``l_f`` (a shrinking horizon in
+  time with a constant number of knots, so one solver serves every remaining time).
+* In both, the first step is pinned to the control period (``min(dt, tau_now)``) so that ``u_0`` is held exactly
+  as long as the env holds it.
+
+**Trust region (the learned terminal cost is only trustworthy where it was trained).** ``trust_region="box"``
+(default) adds ``w * sum_i ((x_n,i - clip(x_n,i, lo_i, hi_i)) / (hi_i - lo_i))^2`` to ``Vhat``: zero inside the
+training box, a quadratic wall outside it, so the optimizer cannot exploit the network where it never saw data.
+The box is taken from the value function (``training_box()`` if it has one, else ``in_mean +- 2 in_std`` of its
+input standardisation, i.e. of its training inputs), or given explicitly; it is part of ``theta``, so a new
+network brings its own box without a rebuild. ``"lqr"`` adds the task's ``l_f`` to ``Vhat`` instead (the stable
+variant of an earlier trial, biased away from the goal); ``"none"`` uses ``Vhat`` alone. ``clamp=True`` (default)
+also replaces ``Vhat`` by the smooth ``max(Vhat, 0)`` (a cost-to-go is never negative). See ``docs/mpc.md`` for the
+measured effect.
+
+**Speed.** The default solver is CasADi's ``fatrop`` (the transcription orders variables and constraints stage by
+stage); with ``jit=True`` (default) the NLP functions are compiled to C once and the object file is cached on disk
+(``$SEAGUL_CACHE_DIR`` or ``~/.cache/seagul/casadi``, keyed by a hash of the generated source and flags), so a new
+process pays only code generation and linking. Without a C compiler the same solver runs interpreted (slower).
+
+**Robustness.** ``predict`` never raises on a failed solve: it falls back to the previous plan shifted by one
+step, then to the LQR reference (:class:`~seagul_control.lqr.LQRPolicy`), then to a zero (clipped) input, and
+records status, iterations, solve time and the source of each action in :attr:`last_info` / :attr:`stats`.
+Warm starts are kept per env index (the previous solution shifted by one step) and dropped on ``episode_start``.
+NaN observations, wrong shapes and a horizon < 1 raise ValueErrors naming the problem.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import os
+import shutil
+import sys
+import tempfile
+import time
+import warnings
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Literal
+
+import casadi as ca
+import numpy as np
+
+from seagul_control.lqr import LQRPolicy, episode_start_mask, output_actions, split_observation
+from seagul_control.transcription import Transcription, TranscriptionSolution
+from seagul_control.value_function import CasadiValueFunction
+from seagul_envs.tasks.base import Task
+
+TrustRegion = Literal["box", "lqr", "none"]
+SolverName = Literal["fatrop", "ipopt"]
+
+#: Tolerance (s) below which a remaining time counts as zero (observations are float32).
+_TIME_EPS = 1e-4
+
+
+# ------------------------------------------------------------------------------------------------ step info
+@dataclass
+class MPCStepInfo:
+    """What happened in one control step of one env."""
+
+    source: str
+    """Where the action came from: ``"solver"``, ``"shifted"`` (previous plan), ``"lqr"`` or ``"zero"``."""
+    status: str
+    """The solver's return status (or ``"exception: ..."``)."""
+    success: bool
+    """True iff the solve converged."""
+    iterations: int
+    """Solver iterations."""
+    solve_time: float
+    """Wall time of the solver call (s)."""
+    step_time: float
+    """Wall time of the whole step for this env, including warm start and fallback (s)."""
+    phase: str
+    """Which problem was solved: ``"lookahead"``, ``"final"`` or ``"full"``."""
+    objective: float
+    """Optimal objective (NaN on failure)."""
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain dict (for JSON)."""
+        return asdict(self)
+
+
+# ----------------------------------------------------------------------------------------------- JIT cache
+_CC_WRAPPER = '''"""seagul: compile a CasADi JIT source once, then copy the cached object (written by mpc.py)."""
+import hashlib, os, shutil, subprocess, sys, tempfile
+cache, cc, args = sys.argv[1], sys.argv[2], sys.argv[3:]
+src = next((a for a in args if a.endswith(".c")), None)
+out = args[args.index("-o") + 1] if "-o" in args else None
+if src is None or out is None:
+    sys.exit(subprocess.call([cc, *args]))
+digest = hashlib.sha256()
+digest.update(cc.encode() + b"\\0")
+for a in args:
+    if a not in (src, out):
+        digest.update(a.encode() + b"\\0")
+with open(src, "rb") as f:
+    digest.update(f.read())
+cached = os.path.join(cache, digest.hexdigest() + ".o")
+if os.path.isfile(cached):
+    shutil.copyfile(cached, out)
+    sys.exit(0)
+code = subprocess.call([cc, *args])
+if code == 0:
+    fd, tmp = tempfile.mkstemp(dir=cache, suffix=".tmp")
+    os.close(fd)
+    shutil.copyfile(out, tmp)
+    os.replace(tmp, cached)
+sys.exit(code)
+'''
+
+
+def default_cache_dir() -> Path:
+    """``$SEAGUL_CACHE_DIR`` or ``~/.cache/seagul/casadi``."""
+    env = os.environ.get("SEAGUL_CACHE_DIR")
+    return Path(env) if env else Path.home() / ".cache" / "seagul" / "casadi"
+
+
+def find_c_compiler() -> str | None:
+    """A C compiler on PATH (``$CC``, gcc, cc, clang) or None."""
+    for name in (os.environ.get("CC"), "gcc", "cc", "clang"):
+        if name and shutil.which(name):
+            return shutil.which(name)
+    return None
+
+
+def jit_solver_options(cache_dir: Path | None = None, flags: tuple[str, ...] = ("-O1",)) -> dict[str, Any] | None:
+    """nlpsol options that JIT-compile the NLP functions through the caching compiler wrapper (None: no compiler).
+
+    ``-O1`` is the trade-off measured for the acrobot MPC: ``-O0`` code ran 4x slower, ``-O2``/``-O3`` compile
+    far longer for no measurable gain on these expression graphs.
+    """
+    cc = find_c_compiler()
+    if cc is None:
+        return None
+    cache_dir = default_cache_dir() if cache_dir is None else Path(cache_dir)
+    compiler = cc
+    try:
+        cache_dir.mkdir(parents=True, exist_ok=True)
+        script = cache_dir / "seagul_cc.py"
+        if not script.is_file() or script.read_text() != _CC_WRAPPER:
+            fd, tmp = tempfile.mkstemp(dir=cache_dir, suffix=".tmp")
+            with os.fdopen(fd, "w") as f:
+                f.write(_CC_WRAPPER)
+            os.replace(tmp, script)
+        # CasADi splits the compiler command on whitespace: only use the wrapper when no path contains a space.
+        parts = (sys.executable, str(script), str(cache_dir), cc)
+        if not any(" " in p for p in parts):
+            compiler = " ".join(parts)
+    except OSError as exc:
+        warnings.warn(f"seagul MPC: JIT cache directory {cache_dir} unusable ({exc}); compiling uncached", stacklevel=2)
+    return {
+        "jit": True,
+        "compiler": "shell",
+        "jit_name": "seagul_mpc",
+        # A fixed name keeps the generated source identical between runs (the cache key); builds happen in a
+        # private directory (see _jit_directory), so equal file names never collide.
+        "jit_temp_suffix": False,
+        "jit_options": {"compiler": compiler, "flags": list(flags), "verbose": False},
+    }
+
+
+_JIT_DIR: str | None = None
+
+
+def _jit_directory() -> str:
+    """A private per-process directory for CasADi's JIT files (CasADi deletes them itself when unloading)."""
+    global _JIT_DIR
+    if _JIT_DIR is None or not os.path.isdir(_JIT_DIR):
+        _JIT_DIR = tempfile.mkdtemp(prefix="seagul_jit_")
+    return _JIT_DIR
+
+
+# -------------------------------------------------------------------------------------------- the problems
+class _Problem:
+    """One transcription solved repeatedly, optionally with its first step pinned to the control period."""
+
+    def __init__(
+        self, trans: Transcription, phase: str, pin_first_step: bool, shrink_steps: bool = False, min_step: float = 0.0
+    ) -> None:
+        self.trans = trans
+        self.phase = phase
+        self.pin_first_step = pin_first_step and trans.free_time
+        self.shrink_steps = shrink_steps
+        self.min_step = min_step
+        if self.pin_first_step and not all(hasattr(trans, a) for a in ("_lbw", "_ubw", "_h_idx")):
+            raise RuntimeError("Transcription no longer exposes _lbw/_ubw/_h_idx; the MPC cannot pin its first step")
+
+    def solve(
+        self,
+        x: np.ndarray,
+        tau: float,
+        theta: np.ndarray,
+        dt: float,
+        guess: np.ndarray,
+        lam_g: np.ndarray | None = None,
+        lam_x: np.ndarray | None = None,
+    ) -> TranscriptionSolution:
+        if self.pin_first_step:
+            # Private bounds of the transcription: the first step must equal the env's hold time.
+            idx = self.trans._h_idx
+            h0 = min(dt, max(tau, 0.0))
+            self.trans._lbw[idx[0]] = self.trans._ubw[idx[0]] = h0
+            if self.shrink_steps:
+                # Steps shrink with the time left (a zero lower bound makes degenerate zero-length steps).
+                hi = self.trans.step_bounds[1]
+                rest = max(tau - h0, 0.0) / max(len(idx) - 1, 1)
+                self.trans._lbw[idx[1:]] = min(self.min_step, 0.5 * rest)
+                self.trans._ubw[idx[1:]] = max(hi, rest)
+        return self.trans.solve(x, tau, theta, guess=guess, lam_g=lam_g, lam_x=lam_x)
+
+    def cold_guess(self, x: np.ndarray, tau: float, dt: float, kind: str) -> np.ndarray:
+        """A first guess: a zero-input rollout (``"rollout"``) or the transcription's straight line (``"line"``)."""
+        trans = self.trans
+        n = trans.horizon
+        if trans.free_time:
+            lo, hi = trans.step_bounds
+            rest = (tau - dt) / max(n - 1, 1) if self.phase != "lookahead" else float(np.mean(trans.step_bounds))
+            steps = np.full(n, float(np.clip(rest, lo, hi)))
+            if self.pin_first_step:
+                steps[0] = min(dt, max(tau, 0.0))
+        else:
+            steps = np.full(n, trans.step if trans.step is not None else tau / n)
+        if kind == "line":
+            return trans.line_guess(x, tau) if not trans.free_time else self._line_with_steps(x, steps)
+        step = trans.task.rk4_step(trans.substeps)
+        states = np.zeros((n + 1, trans.task.nx))
+        states[0] = x
+        u = np.zeros(trans.task.nu)
+        for k in range(n):
+            nxt = np.asarray(step(states[k], u, steps[k])).ravel()
+            states[k + 1] = nxt if np.all(np.isfinite(nxt)) else states[k]
+        return trans.pack_guess(states, np.zeros((n, trans.task.nu)), steps if trans.free_time else None)
+
+    def _line_with_steps(self, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
+        s = np.linspace(0.0, 1.0, self.trans.horizon + 1)[:, None]
+        states = (1 - s) * x + s * self.trans.task.goal
+        return self.trans.pack_guess(states, np.zeros((self.trans.horizon, self.trans.task.nu)), steps)
+
+
+@dataclass
+class _Plan:
+    """The last successful solution of one env, for warm starts and the shifted-plan fallback."""
+
+    problem: _Problem
+    states: np.ndarray
+    controls: np.ndarray
+    steps: np.ndarray
+    lam_x: np.ndarray
+    lam_g: np.ndarray
+    age: int = 0
+    """Control steps taken since the solve."""
+
+
+def _shifted(arr: np.ndarray, age: int, length: int) -> np.ndarray:
+    """``arr[age:]`` with its last row repeated (or cut) to ``length`` rows."""
+    tail = arr[min(age, arr.shape[0] - 1) :]
+    pad = max(0, length - tail.shape[0])
+    return np.concatenate([tail, np.repeat(tail[-1:], pad, axis=0)])[:length].copy()
+
+
+def _shift_guess(
+    plan: _Plan, target: _Problem, x: np.ndarray, dt: float, tau: float
+) -> tuple[np.ndarray, np.ndarray | None, np.ndarray | None]:
+    """The plan advanced by ``plan.age`` steps (tail repeated), resized to ``target``'s horizon, ``x_0 = x``.
+
+    Returns ``(primal, lam_g, lam_x)``; the multipliers are shifted the same way when the plan came from the same
+    problem (same layout), else None.
+    """
+    trans = target.trans
+    n, a = trans.horizon, plan.age
+    states = _shifted(plan.states, a, n + 1)
+    states[0] = x
+    controls = _shifted(plan.controls, a, n)
+    steps = _shifted(plan.steps, a, n)
+    if trans.free_time:
+        steps = np.clip(steps, *trans.step_bounds)
+        if target.pin_first_step:
+            steps[0] = min(dt, max(tau, 0.0))
+    primal = trans.pack_guess(states, controls, steps if trans.free_time else None)
+    if plan.problem is not target or not all(hasattr(trans, k) for k in ("_x_idx", "_u_idx", "_defect_rows")):
+        return primal, None, None
+    # Bound multipliers in the primal layout, constraint multipliers stage by stage (private index maps).
+    lx = plan.lam_x
+    lx_states = _shifted(np.stack([lx[i] for i in trans._x_idx]), a, n + 1)
+    lx_controls = _shifted(np.stack([lx[i] for i in trans._u_idx]), a, n)
+    lx_steps = _shifted(lx[trans._h_idx], a, n) if trans.free_time else None
+    lam_x = trans.pack_guess(lx_states, lx_controls, lx_steps)
+    lam_g = plan.lam_g.copy()
+    defects = _shifted(np.stack([plan.lam_g[r] for r in trans._defect_rows]), a, n)
+    # The initial-state rows come first; x_{a} - x_init takes over the multiplier of the defect that fixed x_a.
+    lam_g[: trans.task.nx] = plan.lam_g[trans._defect_rows[min(a, n) - 1]] if a >= 1 else plan.lam_g[: trans.task.nx]
+    for k, rows in enumerate(trans._defect_rows):
+        lam_g[rows] = defects[k]
+    return primal, lam_g, lam_x
+
+
+# --------------------------------------------------------------------------------------------- base class
+class _MPCBase:
+    """Shared predictor machinery: observation checks, warm starts per env, fallbacks and step statistics."""
+
+    name = "MPC"
+
+    def __init__(self, task: Task, dt: float | None, warm_start: bool, cold_guess: str) -> None:
+        self.task = task
+        self.dt = float(task.control_period if dt is None else dt)
+        if not (np.isfinite(self.dt) and self.dt > 0):
+            raise ValueError(f"{self.name}: dt must be a positive number of seconds, got {dt!r}")
+        if cold_guess not in ("rollout", "line"):
+            raise ValueError(f"{self.name}: cold_guess must be 'rollout' or 'line', got {cold_guess!r}")
+        self.warm_start = bool(warm_start)
+        self.cold_guess = cold_guess
+        self._plans: dict[int, _Plan] = {}
+        self._backup: LQRPolicy | None = None
+        self._backup_failed = False
+        self.last_info: list[MPCStepInfo] = []
+        """Per env of the last ``predict`` call."""
+        self.stats: list[MPCStepInfo] = []
+        """Every step since construction or :meth:`reset_stats`."""
+
+    # ------------------------------------------------------------------ protocol
+    def predict(
+        self,
+        observation: Any,
+        state: Any = None,
+        episode_start: Any = None,
+        deterministic: bool = True,
+    ) -> tuple[np.ndarray, Any]:
+        """SB3 predictor protocol; ``state`` is passed through unchanged (details in :attr:`last_info`)."""
+        xs, taus, batched = split_observation(observation, self.task.nx, self.name)
+        starts = episode_start_mask(episode_start, xs.shape[0])
+        actions = np.zeros((xs.shape[0], self.task.nu))
+        infos = []
+        for i, (x, tau) in enumerate(zip(xs, taus, strict=True)):
+            if starts[i]:
+                self._plans.pop(i, None)
+            actions[i], info = self.act(x, float(tau), env_index=i)
+            infos.append(info)
+        self.last_info = infos
+        return output_actions(actions, batched), state
+
+    def reset(self) -> None:
+        """Forget every warm start (all envs)."""
+        self._plans.clear()
+
+    def reset_stats(self) -> None:
+        """Clear :attr:`stats`."""
+        self.stats = []
+
+    def step_times(self) -> np.ndarray:
+        """Solver wall times (s) of the recorded steps."""
+        return np.array([s.solve_time for s in self.stats])
+
+    # ------------------------------------------------------------------ one step
+    def act(self, x: np.ndarray, tau: float, env_index: int = 0) -> tuple[np.ndarray, MPCStepInfo]:
+        """Input for state ``x`` at time to go ``tau`` (never raises on a solver failure)."""
+        start = time.perf_counter()
+        x = self.task.check_state(x, f"{self.name} state")
+        tau = max(float(tau), 0.0)
+        problem, theta = self._select(tau)
+        plan = self._plans.get(env_index) if self.warm_start else None
+        lam_g = lam_x = None
+        if plan is not None:
+            plan.age += 1
+            guess, lam_g, lam_x = _shift_guess(plan, problem, x, self.dt, tau)
+        else:
+            guess = problem.cold_guess(x, tau, self.dt, self.cold_guess)
+        try:
+            sol = problem.solve(x, tau, theta, self.dt, guess, lam_g, lam_x)
+            ok = sol.success and bool(np.all(np.isfinite(sol.controls[0])))
+            status, iters, solve_time, objective = sol.status, sol.iterations, sol.solve_time, sol.objective
+        except Exception as exc:  # a solver exception must not stop a closed loop
+            sol, ok = None, False
+            status, iters, solve_time, objective = f"exception: {exc}", -1, time.perf_counter() - start, np.nan
+        if ok and sol is not None:
+            u = sol.controls[0]
+            source = "solver"
+            self._plans[env_index] = _Plan(problem, sol.states, sol.controls, sol.steps, sol.lam_x, sol.lam_g)
+        else:
+            objective = float("nan")
+            u, source = self._fallback(x, tau, env_index)
+        u = np.clip(np.asarray(u, dtype=float).reshape(self.task.nu), self.task.u_low, self.task.u_high)
+        info = MPCStepInfo(
+            source=source,
+            status=str(status),
+            success=bool(ok),
+            iterations=int(iters),
+            solve_time=float(solve_time),
+            step_time=time.perf_counter() - start,
+            phase=problem.phase,
+            objective=float(objective),
+        )
+        self.stats.append(info)
+        return u, info
+
+    def _fallback(self, x: np.ndarray, tau: float, env_index: int) -> tuple[np.ndarray, str]:
+        plan = self._plans.get(env_index)
+        if plan is not None and plan.age < plan.controls.shape[0]:
+            return plan.controls[plan.age], "shifted"
+        self._plans.pop(env_index, None)
+        backup = self._backup_policy()
+        if backup is not None:
+            return backup.action(x, tau), "lqr"
+        return np.clip(np.zeros(self.task.nu), self.task.u_low, self.task.u_high), "zero"
+
+    def _backup_policy(self) -> LQRPolicy | None:
+        if self._backup is None and not self._backup_failed:
+            try:
+                self._backup = LQRPolicy(self.task, dt=self.dt)
+            except Exception as exc:
+                warnings.warn(f"{self.name}: no LQR fallback ({exc}); using a zero input", stacklevel=2)
+                self._backup_failed = True
+        return self._backup
+
+    # ------------------------------------------------------------------ subclass hooks
+    def _select(self, tau: float) -> tuple[_Problem, np.ndarray]:
+        raise NotImplementedError
+
+    # ------------------------------------------------------------------ building
+    def _build(self, phase: str, pin: bool, shrink: bool = False, jit: bool = True, **kwargs: Any) -> _Problem:
+        """A transcription with the configured solver, JIT-compiled when possible (falls back to interpreted)."""
+        options = dict(self._solver_options)
+        jit_options = self._jit_options if (self.jit and jit) else None
+        if jit_options is not None:
+            try:
+                # CasADi writes the generated C file into the working directory: keep it out of the user's tree.
+                with contextlib.chdir(_jit_directory()):
+                    trans = Transcription(
+                        self.task, solver=self.solver, solver_options={**options, **jit_options}, **kwargs
+                    )
+                return _Problem(trans, phase, pin, shrink, self.task.step_bounds[0])
+            except Exception as exc:
+                warnings.warn(f"{self.name}: JIT compilation failed ({exc}); solving interpreted", stacklevel=2)
+        trans = Transcription(self.task, solver=self.solver, solver_options=options, **kwargs)
+        return _Problem(trans, phase, pin, shrink, self.task.step_bounds[0])
+
+    def _configure_solver(
+        self,
+        solver: SolverName | None,
+        free_time: bool,
+        jit: bool,
+        jit_cache_dir: str | os.PathLike[str] | None,
+        jit_flags: tuple[str, ...],
+        max_iter: int,
+        tol: float,
+        solver_options: dict[str, Any] | None,
+    ) -> None:
+        # fatrop needs stage-wise structure; a summed-time row couples every stage, so free time needs IPOPT.
+        solver = ("ipopt" if free_time else "fatrop") if solver is None else solver
+        if solver not in ("fatrop", "ipopt"):
+            raise ValueError(f"{self.name}: solver must be 'fatrop' or 'ipopt', got {solver!r}")
+        if solver == "fatrop" and free_time:
+            raise ValueError(f"{self.name}: free time steps couple all stages through sum(h); use solver='ipopt'")
+        if int(max_iter) < 0:
+            raise ValueError(f"{self.name}: max_iter must be >= 0, got {max_iter}")
+        self.solver: SolverName = solver
+        if solver == "fatrop":
+            base = {"fatrop.max_iter": int(max_iter), "fatrop.tol": float(tol)}
+        else:
+            base = {"ipopt.max_iter": int(max_iter), "ipopt.tol": float(tol)}
+        self._solver_options = {**base, **(solver_options or {})}
+        self._jit_options = jit_solver_options(None if jit_cache_dir is None else Path(jit_cache_dir), jit_flags)
+        if jit and self._jit_options is None:
+            warnings.warn(f"{self.name}: no C compiler found; solving without JIT (slower)", stacklevel=3)
+        self.jit = bool(jit) and self._jit_options is not None
+
+
+# ------------------------------------------------------------------------------------- limited lookahead
+class LimitedLookaheadMPC(_MPCBase):
+    """Paper Eq. 3: ``horizon`` steps and a (guarded) learned terminal cost; see the module docstring.
+
+    Args:
+        task: the task.
+        value_function: a :class:`~seagul_control.value_function.CasadiValueFunction` (e.g. a ``ValueNetwork``), or
+            None for the task's own terminal cost ``l_f``.
+        horizon: number of steps ``n`` (paper: 5 for the acrobot, ~250 ms = 10 steps for the glider).
+        dt: control period (default: the task's).
+        solver: ``"fatrop"`` (default) or ``"ipopt"``.
+        jit: compile the NLP functions (cached on disk) when a C compiler exists.
+        jit_cache_dir: cache directory (default ``$SEAGUL_CACHE_DIR`` or ``~/.cache/seagul/casadi``).
+        jit_flags: compiler flags.
+        max_iter: solver iteration limit per step.
+        tol: solver tolerance.
+        solver_options: extra nlpsol options (e.g. ``{"fatrop.mu_init": 1e-2}``).
+        substeps: RK4 substeps per step (default: the task's).
+        trust_region: ``"box"``, ``"lqr"`` or ``"none"`` (module docstring).
+        trust_box: ``(low, high)`` state box for ``"box"`` (default: from the value function).
+        trust_weight: weight ``w`` of the box penalty (value units per squared box width).
+        clamp: use ``max(Vhat, 0)`` (smooth) as the learned cost.
+        final_box: impose the task's terminal box in the final-phase problems.
+        steps: ``"fixed"`` (default; every step is ``dt``, fatrop-compatible) or ``"free"`` (``h_k`` in the task's
+            step bounds with ``sum(h) <= tau_now``, paper Eq. 3's general form; the summed-time row couples all
+            stages, so only IPOPT accepts it).
+        end_phase: ``"switch"`` (keep the horizon, terminal cost ``l_f`` once ``tau_now - sum(h) <= 0``) or
+            ``"shrink"`` (``round(tau_now / dt)`` steps ending exactly at the episode end, terminal box and
+            ``l_f``); default ``"shrink"`` for tasks with a terminal box (glider), ``"switch"`` otherwise.
+        warm_start: warm-start each env from its previous solution (shifted).
+        cold_guess: first guess without a warm start: ``"rollout"`` (zero input) or ``"line"`` (to the goal).
+    """
+
+    name = "LimitedLookaheadMPC"
+
+    def __init__(
+        self,
+        task: Task,
+        value_function: CasadiValueFunction | None,
+        horizon: int,
+        *,
+        dt: float | None = None,
+        solver: SolverName | None = None,
+        jit: bool = True,
+        jit_cache_dir: str | os.PathLike[str] | None = None,
+        jit_flags: tuple[str, ...] = ("-O1",),
+        max_iter: int = 50,
+        tol: float = 1e-6,
+        solver_options: dict[str, Any] | None = None,
+        substeps: int | None = None,
+        trust_region: TrustRegion = "box",
+        trust_box: tuple[np.ndarray, np.ndarray] | None = None,
+        trust_weight: float = 100.0,
+        clamp: bool = True,
+        final_box: bool = True,
+        steps: str = "fixed",
+        end_phase: str | None = None,
+        warm_start: bool = True,
+        cold_guess: str = "rollout",
+    ) -> None:
+        if steps not in ("fixed", "free"):
+            raise ValueError(f"{self.name}: steps must be 'fixed' or 'free', got {steps!r}")
+        has_box = bool(np.any(np.isfinite(task.x_final_low)) or np.any(np.isfinite(task.x_final_high)))
+        end_phase = ("shrink" if has_box else "switch") if end_phase is None else end_phase
+        if end_phase not in ("switch", "shrink"):
+            raise ValueError(f"{self.name}: end_phase must be 'switch' or 'shrink', got {end_phase!r}")
+        if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or int(horizon) < 1:
+            raise ValueError(f"{self.name}: horizon must be an integer >= 1 step, got {horizon!r}")
+        if trust_region not in ("box", "lqr", "none"):
+            raise ValueError(f"{self.name}: trust_region must be 'box', 'lqr' or 'none', got {trust_region!r}")
+        if not (np.isfinite(trust_weight) and trust_weight >= 0):
+            raise ValueError(f"{self.name}: trust_weight must be a finite number >= 0, got {trust_weight!r}")
+        super().__init__(task, dt, warm_start, cold_guess)
+        self.horizon = int(horizon)
+        self.trust_region: TrustRegion = trust_region
+        self.trust_weight = float(trust_weight)
+        self.clamp = bool(clamp)
+        self._configure_solver(solver, steps == "free", jit, jit_cache_dir, jit_flags, max_iter, tol, solver_options)
+
+        self._vf_fn: ca.Function | None = None
+        self._vf_theta = np.zeros(0)
+        n_vf = 0
+        if value_function is not None:
+            self._vf_fn = self._check_value_function(value_function)
+            n_vf = int(self._vf_fn.nnz_in(2))
+        self.n_vf = n_vf
+        terminal = self._terminal_function(n_vf)
+        n_theta = int(terminal.nnz_in(2))
+        self._theta = np.zeros(n_theta)
+        if value_function is not None:
+            self.set_value_function(value_function, trust_box=trust_box)
+
+        self.free_time = steps == "free"
+        self.end_phase = end_phase
+        self.final_box = bool(final_box)
+        self.substeps = substeps
+        self._final_fixed: dict[int, _Problem] = {}
+        self._final: _Problem | None = None
+        common = {"horizon": self.horizon, "terminal_cost": terminal, "n_theta": n_theta, "substeps": substeps}
+        if not self.free_time:
+            self._lookahead = self._build("lookahead", False, free_time=False, step=self.dt, final_box=False, **common)
+        else:
+            self._lookahead = self._build(
+                "lookahead", True, free_time=True, time_mode="at_most", final_box=False, **common
+            )
+            if end_phase == "shrink":
+                # One free-time problem serves every remaining time: sum(h) = tau_now, steps shrink with it.
+                self._final = self._build(
+                    "final",
+                    True,
+                    shrink=True,
+                    free_time=True,
+                    step_bounds=(0.0, max(task.step_bounds[1], self.dt)),
+                    time_mode="equal",
+                    final_box=self.final_box,
+                    **common,
+                )
+
+    # ------------------------------------------------------------------ value function
+    def _check_value_function(self, vf: CasadiValueFunction) -> ca.Function:
+        if not (hasattr(vf, "casadi_function") and hasattr(vf, "casadi_parameters")):
+            raise TypeError(
+                f"{self.name}: value_function must implement casadi_function() and casadi_parameters() "
+                f"(CasadiValueFunction), got {type(vf).__name__}"
+            )
+        name = getattr(vf, "task_name", "")
+        if name and name != self.task.name:
+            raise ValueError(f"{self.name}: value function was trained for task {name!r}, not {self.task.name!r}")
+        fn = vf.casadi_function()
+        shapes = [(fn.size1_in(i), fn.size2_in(i)) for i in range(fn.n_in())]
+        if fn.n_in() != 3 or shapes[0] != (self.task.nx, 1) or fn.nnz_in(1) != 1 or fn.nnz_out(0) != 1:
+            raise ValueError(
+                f"{self.name}: value function's CasADi form must be (x[{self.task.nx}], tau[1], theta[n]) -> V[1], "
+                f"got inputs {shapes} and {fn.n_out()} output(s)"
+            )
+        return fn
+
+    def set_value_function(
+        self, value_function: CasadiValueFunction, trust_box: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> None:
+        """Use a new value function of the same architecture: only NLP parameters change (no rebuild)."""
+        fn = self._check_value_function(value_function)
+        if self._vf_fn is None:
+            raise ValueError(f"{self.name}: built without a value function; build a new MPC to add one")
+        if fn is not self._vf_fn and fn.serialize() != self._vf_fn.serialize():
+            raise ValueError(
+                f"{self.name}: the new value function has a different CasADi structure (architecture) than the one "
+                "the solver was built with; build a new MPC"
+            )
+        theta = np.asarray(value_function.casadi_parameters(), dtype=float).ravel()
+        if theta.size != self.n_vf or not np.all(np.isfinite(theta)):
+            raise ValueError(f"{self.name}: value function parameters must be {self.n_vf} finite numbers")
+        low, high = self._trust_box(value_function) if trust_box is None else trust_box
+        low = self.task.check_state(low, "trust_box low")
+        high = self.task.check_state(high, "trust_box high")
+        if np.any(high < low):
+            raise ValueError(f"{self.name}: trust_box high must be >= low, got {low} and {high}")
+        self._vf_theta = theta
+        self.trust_box = (low, high)
+        nx = self.task.nx
+        self._theta[: self.n_vf] = theta
+        self._theta[self.n_vf : self.n_vf + nx] = low
+        self._theta[self.n_vf + nx : self.n_vf + 2 * nx] = high
+        self._theta[self.n_vf + 2 * nx] = self.trust_weight
+        self.reset()
+
+    def _trust_box(self, vf: Any) -> tuple[np.ndarray, np.ndarray]:
+        """Training box of ``vf``: ``training_box()``, else mean +- 2 std of its input standardisation, else X0 +- 1."""
+        nx = self.task.nx
+        box = getattr(vf, "training_box", None)
+        if callable(box):
+            box = box()
+        if box is not None:
+            lo, hi = box
+            return np.asarray(lo, dtype=float).ravel()[:nx], np.asarray(hi, dtype=float).ravel()[:nx]
+        mean, std = getattr(vf, "in_mean", None), getattr(vf, "in_std", None)
+        if mean is not None and std is not None:
+            mean = np.asarray(_to_numpy(mean), dtype=float).ravel()[:nx]
+            std = np.asarray(_to_numpy(std), dtype=float).ravel()[:nx]
+            if mean.size == nx and std.size == nx and np.all(np.isfinite(mean)) and np.all(std > 0):
+                return mean - 2 * std, mean + 2 * std
+        width = np.maximum(self.task.x0_high - self.task.x0_low, 1.0)
+        return self.task.x0_low - width, self.task.x0_high + width
+
+    def _terminal_function(self, n_vf: int) -> ca.Function:
+        """``(x, tau_rem, theta) -> s * guarded Vhat + (1 - s) * l_f`` with ``theta = [vf, lo, hi, w, s]``."""
+        nx = self.task.nx
+        x = ca.SX.sym("x", nx)
+        tau = ca.SX.sym("tau_rem")
+        theta = ca.SX.sym("theta", n_vf + 2 * nx + 2)
+        lf = self.task.terminal_cost(x)
+        if self._vf_fn is None:
+            return ca.Function("mpc_terminal", [x, tau, theta], [lf])
+        v = self._vf_fn(x, tau, theta[:n_vf])
+        if self.clamp:
+            v = 0.5 * (v + ca.sqrt(v**2 + 1e-6))  # smooth max(V, 0): a cost-to-go is never negative
+        lo, hi = theta[n_vf : n_vf + nx], theta[n_vf + nx : n_vf + 2 * nx]
+        w, s = theta[n_vf + 2 * nx], theta[n_vf + 2 * nx + 1]
+        if self.trust_region == "box":
+            outside = (ca.fmax(x - hi, 0) + ca.fmin(x - lo, 0)) / ca.fmax(hi - lo, 1e-6)
+            v = v + w * ca.sumsqr(outside)
+        elif self.trust_region == "lqr":
+            v = v + lf
+        return ca.Function("mpc_terminal", [x, tau, theta], [s * v + (1 - s) * lf])
+
+    def terminal_cost_value(self, x: np.ndarray, tau_remaining: float) -> float:
+        """The learned (guarded) terminal cost as the NLP sees it, for checks."""
+        theta = self._theta.copy()
+        if self._vf_fn is not None:
+            theta[-1] = 1.0
+        return float(self._lookahead.trans.terminal_cost(x, tau_remaining, theta))
+
+    # ------------------------------------------------------------------ phases
+    def _select(self, tau: float) -> tuple[_Problem, np.ndarray]:
+        theta = self._theta.copy()
+        remaining = tau - self.horizon * self.dt
+        learned = remaining > _TIME_EPS
+        if self._vf_fn is not None:
+            theta[-1] = 1.0 if learned else 0.0
+        if learned or self.end_phase == "switch":
+            return self._lookahead, theta
+        if self.free_time and self._final is not None:
+            return self._final, theta
+        # Fixed steps: k = round(tau / dt) steps end exactly at the episode end (one lazily built solver per k).
+        k = max(1, min(self.horizon, round(tau / self.dt)))
+        if k not in self._final_fixed:
+            self._final_fixed[k] = self._build(
+                "final",
+                False,
+                horizon=k,
+                free_time=False,
+                step=self.dt,
+                final_box=self.final_box,
+                terminal_cost=self._lookahead.trans.terminal_cost,
+                n_theta=self._theta.size,
+                substeps=self.substeps,
+                jit=False,
+            )
+        return self._final_fixed[k], theta
+
+
+# ----------------------------------------------------------------------------------------------- full horizon
+class FullHorizonMPC(_MPCBase):
+    """The upper reference: the task's full problem re-solved at every step from the current state.
+
+    Fixed-step tasks (acrobot): ``round(tau_now / dt)`` steps of ``dt`` and ``l_f`` (a solver per remaining
+    horizon, built lazily and kept). Free-time tasks (glider): ``task.num_steps`` steps with ``sum(h) = tau_now``,
+    ``h_k in [0, h_max]``, the first step pinned to ``min(dt, tau_now)``, the terminal box and ``l_f`` (one solver).
+    Options as for :class:`LimitedLookaheadMPC`; JIT is off by default (compiling the long problem takes minutes).
+    """
+
+    name = "FullHorizonMPC"
+
+    def __init__(
+        self,
+        task: Task,
+        *,
+        dt: float | None = None,
+        solver: SolverName | None = None,
+        jit: bool = False,
+        jit_cache_dir: str | os.PathLike[str] | None = None,
+        jit_flags: tuple[str, ...] = ("-O1",),
+        max_iter: int = 500,
+        tol: float = 1e-6,
+        solver_options: dict[str, Any] | None = None,
+        substeps: int | None = None,
+        horizon: int | None = None,
+        warm_start: bool = True,
+        cold_guess: str = "line",
+    ) -> None:
+        super().__init__(task, dt, warm_start, cold_guess)
+        self._configure_solver(
+            solver, not task.fixed_step, jit, jit_cache_dir, jit_flags, max_iter, tol, solver_options
+        )
+        self.substeps = substeps
+        self.free_time = not task.fixed_step
+        self.horizon = int(task.num_steps if horizon is None else horizon)
+        if self.horizon < 1:
+            raise ValueError(f"{self.name}: horizon must be >= 1, got {horizon!r}")
+        self._problems: dict[int, _Problem] = {}
+        if self.free_time:
+            hi = max(task.step_bounds[1], self.dt)
+            self._problems[0] = self._build(
+                "full",
+                True,
+                shrink=True,
+                horizon=self.horizon,
+                free_time=True,
+                step_bounds=(0.0, hi),
+                time_mode="equal",
+                final_box=True,
+                substeps=substeps,
+            )
+
+    def _select(self, tau: float) -> tuple[_Problem, np.ndarray]:
+        if self.free_time:
+            return self._problems[0], np.zeros(0)
+        n = max(1, round(tau / self.dt))
+        if n not in self._problems:
+            self._problems[n] = self._build(
+                "full", False, horizon=n, free_time=False, step=self.dt, final_box=True, substeps=self.substeps
+            )
+        return self._problems[n], np.zeros(0)
+
+
+def _to_numpy(value: Any) -> np.ndarray:
+    """A numpy copy of an array-like (torch tensors included, without importing torch)."""
+    detach = getattr(value, "detach", None)
+    if callable(detach):
+        value = detach().cpu().numpy()
+    return np.asarray(value)
+
+
+__all__ = [
+    "FullHorizonMPC",
+    "LimitedLookaheadMPC",
+    "MPCStepInfo",
+    "default_cache_dir",
+    "find_c_compiler",
+    "jit_solver_options",
+]

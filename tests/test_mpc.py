@@ -1,0 +1,293 @@
+"""Limited-lookahead and full-horizon MPC: exactness checks, warm starts, fallbacks, the predictor protocol."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import casadi as ca
+import gymnasium as gym
+import numpy as np
+import pytest
+import scipy.linalg
+
+import seagul_envs  # noqa: F401  (registers the envs)
+from seagul_control.mpc import FullHorizonMPC, LimitedLookaheadMPC, _Problem
+from seagul_control.transcription import Transcription
+from seagul_envs import make_task
+
+# Interpreted solvers keep the default suite free of minutes of C compilation.
+FAST = {"jit": False}
+
+
+class QuadraticValue:
+    """Stand-in value function ``V = v0 + g'(x - c) + (x - c)' P (x - c)`` implementing the CasADi protocol."""
+
+    def __init__(self, P: np.ndarray, center: np.ndarray, grad: np.ndarray | None = None, value: float = 0.0) -> None:
+        nx = center.size
+        self.task_name = ""
+        self.theta = np.concatenate([P.ravel(order="F"), center, np.zeros(nx) if grad is None else grad, [value]])
+        x, tau, th = ca.SX.sym("x", nx), ca.SX.sym("tau"), ca.SX.sym("theta", self.theta.size)
+        Pm = ca.reshape(th[: nx * nx], nx, nx)
+        c, g, v0 = th[nx * nx : nx * nx + nx], th[nx * nx + nx : nx * nx + 2 * nx], th[-1]
+        e = x - c
+        self.fn = ca.Function("quadratic_value", [x, tau, th], [v0 + ca.dot(g, e) + ca.bilin(Pm, e, e)])
+
+    def casadi_function(self) -> ca.Function:
+        return self.fn
+
+    def casadi_parameters(self) -> np.ndarray:
+        return self.theta
+
+
+def _linear_acrobot():
+    """The acrobot linearised at the goal (same costs): RK4 of it is linear, so LQR is exact."""
+    task = make_task("acrobot")
+    x, u = ca.SX.sym("x", 4), ca.SX.sym("u", 1)
+    f = task.dynamics(x, u)
+    jac = ca.Function("j", [x, u], [ca.jacobian(f, x), ca.jacobian(f, u)])
+    Ac, Bc = (np.asarray(m) for m in jac(task.goal, 0.0))
+    linear = ca.Function("lin_f", [x, u], [Ac @ (x - task.goal) + Bc @ u])
+    lin = dataclasses.replace(task, name="acrobot_linear", dynamics=linear)
+    h = task.control_period
+    xn = lin.rk4_step()(x, u, h)
+    A, B = (np.asarray(m) for m in ca.Function("d", [x, u], [ca.jacobian(xn, x), ca.jacobian(xn, u)])(task.goal, 0))
+    Q, R = h * task.extras["Q"], h * task.extras["R"]
+    P = scipy.linalg.solve_discrete_are(A, B, Q, R)
+    K = np.linalg.solve(R + B.T @ P @ B, B.T @ P @ A)
+    err = x - task.goal
+    lin = dataclasses.replace(lin, terminal_cost=ca.Function("lf", [x], [ca.bilin(P, err, err)]))
+    return lin, P, K
+
+
+def test_lq_mpc_with_exact_terminal_cost_equals_lqr_and_full_horizon():
+    """Linear dynamics, quadratic cost, DARE terminal: a 5-step MPC is the infinite-horizon LQR exactly."""
+    task, P, K = _linear_acrobot()
+    x0 = task.goal + np.array([0.02, -0.03, 0.05, -0.02])
+    expected = -K @ (x0 - task.goal)
+    assert 0.05 < abs(expected[0]) < task.u_high[0]  # inside the bounds, and not trivially zero
+    tight = {"tol": 1e-10, **FAST}
+    mpc = LimitedLookaheadMPC(task, QuadraticValue(P, task.goal), 5, trust_region="none", clamp=False, **tight)
+    full = FullHorizonMPC(task, **tight)
+    u_mpc, info = mpc.act(x0, 5.0)
+    u_full, _ = full.act(x0, 5.0)
+    assert info.source == "solver"
+    np.testing.assert_allclose(u_mpc, expected, rtol=1e-6, atol=1e-8)
+    np.testing.assert_allclose(u_full, expected, rtol=1e-6, atol=1e-8)
+    # A wrong terminal cost must change the answer (the check above is not vacuous).
+    wrong = LimitedLookaheadMPC(task, QuadraticValue(0.1 * P, task.goal), 5, trust_region="none", clamp=False, **tight)
+    assert abs(wrong.act(x0, 5.0)[0][0] - expected[0]) > 1e-3
+
+
+def test_mpc_with_full_horizon_cost_to_go_reproduces_the_full_horizon_first_action():
+    """Nonlinear acrobot: terminal cost with the full-horizon cost-to-go's value and gradient at knot 5."""
+    task = make_task("acrobot")
+    n, m = 5, task.num_steps
+    x0 = task.goal + np.array([0.15, -0.1, 0.2, -0.1])
+    full = Transcription(task, m, free_time=False, step=task.control_period, final_box=False)
+    sol = full.solve(x0, task.tau_nominal)
+    assert sol.success
+    x_n = sol.states[n]
+    stage = full.stage_costs(sol.states, sol.controls, sol.steps)
+    v_n = sol.objective - stage[:n].sum()
+    grad_n = sol.defect_multipliers[n - 1]
+    # Re-solve the tail from knot n: same cost-to-go and the same gradient (dual of x_0 = x_init).
+    tail = Transcription(task, m - n, free_time=False, step=task.control_period, final_box=False).solve(
+        x_n, task.tau_nominal - n * task.control_period
+    )
+    assert tail.objective == pytest.approx(v_n, rel=1e-6)
+    np.testing.assert_allclose(tail.param_sensitivity[: task.nx], grad_n, rtol=1e-4, atol=1e-6)
+
+    value = QuadraticValue(task.extras["Qf"], x_n, grad_n, v_n)
+    mpc = LimitedLookaheadMPC(task, value, n, trust_region="none", clamp=False, tol=1e-10, **FAST)
+    u, info = mpc.act(x0, task.tau_nominal)
+    assert info.success
+    np.testing.assert_allclose(u, sol.controls[0], atol=1e-4)
+    # Without the gradient term the short MPC acts differently: the check has teeth.
+    plain = LimitedLookaheadMPC(
+        task, QuadraticValue(task.extras["Qf"], x_n, None, v_n), n, trust_region="none", clamp=False, tol=1e-10, **FAST
+    )
+    assert np.max(np.abs(plain.act(x0, task.tau_nominal)[0] - sol.controls[0])) > 1e-2
+
+
+def _acrobot_mpc(**kwargs):
+    task = make_task("acrobot")
+    return task, LimitedLookaheadMPC(task, QuadraticValue(task.extras["Qf"], task.goal), 5, **{**FAST, **kwargs})
+
+
+def _obs(x: np.ndarray, tau: float) -> np.ndarray:
+    return np.concatenate([x, [tau]]).astype(np.float32)
+
+
+def test_evaluate_policy_on_a_two_env_dummy_vec_env():
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.evaluation import evaluate_policy
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    _, mpc = _acrobot_mpc()
+    venv = make_vec_env("SeagulAcrobot-v0", n_envs=2, seed=3, vec_env_cls=DummyVecEnv)
+    rewards, lengths = evaluate_policy(mpc, venv, n_eval_episodes=2, return_episode_rewards=True, warn=False)
+    assert lengths == [50, 50]
+    assert np.all(np.isfinite(rewards))
+    assert len(mpc.stats) == 100  # one solve per env per step
+    assert sum(s.source == "solver" for s in mpc.stats) >= 90
+    assert {0, 1} <= set(mpc._plans)  # one warm start per env index
+    # The balancing MPC beats doing nothing from the same starts.
+    venv_zero = make_vec_env("SeagulAcrobot-v0", n_envs=2, seed=3, vec_env_cls=DummyVecEnv)
+
+    class Zero:
+        def predict(self, obs, state=None, episode_start=None, deterministic=True):
+            return np.zeros((obs.shape[0], 1), dtype=np.float32), state
+
+    zero_rewards, _ = evaluate_policy(Zero(), venv_zero, n_eval_episodes=2, return_episode_rewards=True, warn=False)
+    assert np.mean(rewards) > np.mean(zero_rewards)
+
+
+def test_warm_start_is_per_env_and_dropped_on_episode_start(monkeypatch):
+    task, mpc = _acrobot_mpc()
+    cold_calls: list[float] = []
+    original = _Problem.cold_guess
+
+    def spy(self, x, tau, dt, kind):
+        cold_calls.append(tau)
+        return original(self, x, tau, dt, kind)
+
+    monkeypatch.setattr(_Problem, "cold_guess", spy)
+    obs = np.stack([_obs(task.goal + 0.05, 5.0), _obs(task.goal - 0.05, 5.0)])
+    mpc.predict(obs, episode_start=np.array([True, True]))
+    assert len(cold_calls) == 2
+    obs[:, -1] = 4.9
+    mpc.predict(obs, episode_start=np.array([False, False]))
+    assert len(cold_calls) == 2  # both warm-started from their shifted plans
+    mpc.predict(obs, episode_start=np.array([False, True]))
+    assert len(cold_calls) == 3  # only env 1 restarted cold
+    assert all(i.source == "solver" for i in mpc.last_info)
+
+
+def test_failed_solves_fall_back_to_the_shifted_plan_then_lqr(monkeypatch):
+    task, mpc = _acrobot_mpc()
+    x = task.goal + np.array([0.1, -0.1, 0.0, 0.0])
+    _, info = mpc.act(x, 5.0)
+    assert info.source == "solver"
+    plan = mpc._plans[0].controls.copy()
+
+    def broken(self, *args, **kwargs):
+        raise RuntimeError("forced failure")
+
+    monkeypatch.setattr(_Problem, "solve", broken)
+    sources, actions = [], []
+    for k in range(1, 7):
+        u, info = mpc.act(x, 5.0 - 0.1 * k)
+        sources.append(info.source)
+        actions.append(u)
+        assert not info.success and info.status.startswith("exception")
+    assert sources == ["shifted"] * 4 + ["lqr"] * 2
+    np.testing.assert_allclose(np.array(actions[:4])[:, 0], plan[1:5, 0])
+    lqr = mpc._backup_policy()
+    np.testing.assert_allclose(actions[-1], lqr.action(x, 4.4))
+
+
+def test_real_solver_failure_is_reported_not_raised():
+    task, mpc = _acrobot_mpc(max_iter=0)
+    actions, _ = mpc.predict(_obs(task.goal + np.array([0.2, 0.1, 0.3, 0.0]), 5.0))
+    info = mpc.last_info[0]
+    assert actions.shape == (1,) and np.all(np.isfinite(actions))
+    assert not info.success and info.source == "lqr"
+    assert info.iterations == 0 and info.solve_time > 0
+
+
+def test_terminal_cost_equals_the_value_network_it_wraps():
+    torch = pytest.importorskip("torch")
+    from seagul_learn.value_network import ValueNetwork
+
+    task = make_task("acrobot")
+    net = ValueNetwork(4, (32,), task_name="acrobot", seed=1)
+    rng = np.random.default_rng(0)
+    xs = task.sample_x0(rng, 64)
+    net.set_normalization(xs, rng.uniform(0, 5, 64), rng.uniform(0, 50, 64))
+    with torch.no_grad():
+        net.layers[-1].bias.fill_(3.0)  # keep V > 0 so the clamp is inactive on most points
+    box = (task.goal - 1.0, task.goal + 1.0)
+    mpc = LimitedLookaheadMPC(task, net, 5, trust_box=box, trust_weight=7.0, **FAST)
+    plain = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, **FAST)
+    for x, tau in zip(task.sample_x0(rng, 5), rng.uniform(0.5, 4.5, 5), strict=True):
+        expected = float(net.predict(x[None], tau)[0])
+        assert plain.terminal_cost_value(x, tau) == pytest.approx(expected, rel=1e-10, abs=1e-10)
+    # Outside the trust box: the quadratic wall is added (in box widths).
+    x = task.goal + np.array([1.5, 0.0, 0.0, -1.2])
+    v = float(net.predict(x[None], 2.0)[0])
+    wall = 7.0 * ((0.5 / 2.0) ** 2 + (0.2 / 2.0) ** 2)
+    assert mpc.terminal_cost_value(x, 2.0) == pytest.approx(max(v, 0) + wall, rel=1e-3, abs=1e-3)
+
+
+def test_new_network_of_the_same_architecture_does_not_rebuild_the_solver():
+    pytest.importorskip("torch")
+    from seagul_learn.value_network import ValueNetwork
+
+    task = make_task("acrobot")
+    a = ValueNetwork(4, (32,), task_name="acrobot", seed=1)
+    b = ValueNetwork(4, (32,), task_name="acrobot", seed=2)
+    mpc = LimitedLookaheadMPC(task, a, 5, trust_region="none", **FAST)
+    solver_before = mpc._lookahead.trans._solver
+    x = task.goal + np.array([0.1, 0.1, 0.0, 0.0])
+    u_a, _ = mpc.act(x, 5.0)
+    mpc.set_value_function(b)
+    assert mpc._lookahead.trans._solver is solver_before
+    u_b, _ = mpc.act(x, 5.0)
+    assert not np.allclose(u_a, u_b)
+    with pytest.raises(ValueError, match="different CasADi structure"):
+        mpc.set_value_function(ValueNetwork(4, (16,), task_name="acrobot"))
+    with pytest.raises(ValueError, match="trained for task 'glider'"):
+        mpc.set_value_function(ValueNetwork(4, (32,), task_name="glider"))
+
+
+@pytest.mark.parametrize("horizon", [0, -3, 2.5, True])
+def test_bad_horizon_raises(horizon):
+    with pytest.raises(ValueError, match="horizon must be an integer >= 1"):
+        LimitedLookaheadMPC(make_task("acrobot"), None, horizon, **FAST)
+
+
+def test_bad_observations_raise():
+    _, mpc = _acrobot_mpc()
+    with pytest.raises(ValueError, match="NaN"):
+        mpc.predict(np.array([np.pi, np.nan, 0, 0, 5.0]))
+    with pytest.raises(ValueError, match=r"shape \(5,\) or \(n_envs, 5\)"):
+        mpc.predict(np.zeros(4))
+    with pytest.raises(ValueError, match="episode_start"):
+        mpc.predict(np.zeros((2, 5)), episode_start=np.array([True, False, True]))
+
+
+def test_end_of_episode_switches_to_the_task_terminal_cost():
+    task, mpc = _acrobot_mpc()
+    x = task.goal + 0.05
+    _, theta_mid = mpc._select(5.0)
+    _, theta_end = mpc._select(0.5)  # tau - n dt = 0: no learned cost left
+    assert theta_mid[-1] == 1.0 and theta_end[-1] == 0.0
+    assert mpc.act(x, 0.3)[1].success
+
+
+def test_glider_final_phase_shrinks_to_the_episode_end():
+    task = make_task("glider")
+    goal_like = QuadraticValue(np.diag(task.extras["Qf"].diagonal()), task.goal)
+    goal_like.task_name = "glider"
+    mpc = LimitedLookaheadMPC(task, goal_like, 10, **FAST)
+    from seagul_control.lqr import LQRPolicy
+
+    nominal = LQRPolicy(task)
+    x0 = 0.5 * (task.x0_low + task.x0_high)
+    # Fly the TVLQR along the nominal perch to 0.1 s before the end, then let the MPC finish (final phase, 4 steps).
+    env = gym.make("SeagulGlider-v0")
+    obs, info = env.reset(options={"state": x0})
+    for _ in range(28):
+        action, _ = nominal.predict(obs)
+        obs, _, terminated, _, info = env.step(action)
+        assert not terminated
+    assert info["time_to_go"] == pytest.approx(0.1)
+    done = False
+    while not done:
+        action, _ = mpc.predict(obs)
+        assert mpc.last_info[0].phase == "final"
+        obs, _, terminated, truncated, info = env.step(action)
+        done = terminated or truncated
+    assert sorted(mpc._final_fixed) == [1, 2, 3, 4]
+    x = info["state"]
+    assert abs(x[0]) < 0.05 and abs(x[1]) < 0.05, x
