@@ -17,35 +17,49 @@ step; it is not the derivative of a free-final-time value and the acrobot's ``T0
 from __future__ import annotations
 
 import dataclasses
+import functools
 import time
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
+import casadi as ca
 import numpy as np
 
 from seagul_control.transcription import Transcription, TranscriptionSolution
 from seagul_envs.tasks import make_task
-from seagul_envs.tasks.base import Task
+from seagul_envs.tasks.base import Task, rk4_map
 from seagul_learn.results import SolveResult
 
 SolverName = Literal["ipopt", "fatrop"]
-GuessName = Literal["line", "goal", "hold"]
+GuessName = Literal["line", "goal", "hold", "kinematic"]
 
-GUESS_NAMES: tuple[str, ...] = ("line", "goal", "hold")
+GUESS_NAMES: tuple[str, ...] = ("line", "goal", "hold", "kinematic")
+
+#: (position, velocity) state index pairs used by the ``"kinematic"`` guess.
+KINEMATIC_PAIRS: dict[str, tuple[tuple[int, int], ...]] = {"glider": ((0, 4), (1, 5))}
+
+#: Per-task defaults of the fields left at None in :class:`TrajOptConfig` (measured choices, docs/trajopt.md).
+TASK_DEFAULTS: dict[str, dict[str, Any]] = {
+    "acrobot": {"solver": "fatrop", "guesses": ("line", "goal")},
+    "glider": {"solver": "fatrop", "guesses": ("kinematic", "line", "goal")},
+}
+_GENERIC_DEFAULTS: dict[str, Any] = {"solver": "ipopt", "guesses": ("line", "goal")}
 
 
 @dataclass(frozen=True)
 class TrajOptConfig:
     """Options of :class:`TrajectoryOptimizer` (hashable, so workers can cache one optimizer per configuration)."""
 
-    solver: SolverName = "ipopt"
-    """Solver of the first attempt."""
+    solver: SolverName | None = None
+    """Solver of the first attempt (None: the task's default in :data:`TASK_DEFAULTS`)."""
     fallback_solver: SolverName = "ipopt"
     """Solver of the fallback attempts (the first attempt's solver when equal)."""
-    guesses: tuple[str, ...] = ("line", "goal")
-    """Initial guesses of the first attempt and the fallbacks, tried in order until one succeeds:
-    ``"line"`` straight line from ``x_init`` to the goal, ``"goal"`` the goal at every knot,
-    ``"hold"`` ``x_init`` at every knot. Inputs start at zero, steps at ``tau / m``."""
+    guesses: tuple[str, ...] | None = None
+    """Initial guesses of the first attempt and the fallbacks, tried in order until one succeeds (None: the task's
+    default): ``"line"`` straight line from ``x_init`` to the goal, ``"goal"`` the goal at every knot, ``"hold"``
+    ``x_init`` at every knot, ``"kinematic"`` the line with each (position, velocity) pair of
+    :data:`KINEMATIC_PAIRS` made consistent (velocity linear from the start's so that the position reaches the
+    goal's at ``tau``). Inputs start at zero, steps at ``tau / m``."""
     multi_start: Literal["never", "on_suspect", "always"] = "never"
     """Also solve from every guess in ``multi_start_guesses`` and keep the lowest value: ``"always"``, or
     ``"on_suspect"`` when the first successful value exceeds ``suspect_value`` (a cheap guard against poor local
@@ -80,14 +94,22 @@ class TrajOptConfig:
             changes["multi_start_guesses"] = tuple(changes["multi_start_guesses"])
         return dataclasses.replace(self, **changes)
 
+    def resolved(self, task_name: str) -> TrajOptConfig:
+        """A copy with the None fields filled from the task's defaults."""
+        defaults = TASK_DEFAULTS.get(task_name, _GENERIC_DEFAULTS)
+        changes = {k: v for k, v in defaults.items() if getattr(self, k) is None}
+        return dataclasses.replace(self, **changes) if changes else self
+
     def validate(self) -> None:
         """Raise ValueError on unknown solver or guess names and bad numbers."""
         for s in (self.solver, self.fallback_solver):
+            if s is None:
+                continue
             if s not in ("ipopt", "fatrop"):
                 raise ValueError(f"unknown solver {s!r}; use 'ipopt' or 'fatrop'")
-        if not self.guesses:
+        if self.guesses is not None and not self.guesses:
             raise ValueError("guesses must name at least one initial guess")
-        for gname in (*self.guesses, *self.multi_start_guesses):
+        for gname in (*(self.guesses or ()), *self.multi_start_guesses):
             if gname not in GUESS_NAMES:
                 raise ValueError(f"unknown guess {gname!r}; use one of {GUESS_NAMES}")
         if self.multi_start not in ("never", "on_suspect", "always"):
@@ -128,6 +150,7 @@ class TrajectoryOptimizer:
                 raise ValueError(f"unknown TrajectoryOptimizer options {sorted(unknown)}")
             cfg = cfg.with_updates(**options)
         cfg.validate()
+        cfg = cfg.resolved(self.task.name)
         self.config = cfg
         self.horizon = self.task.num_steps if cfg.horizon is None else int(cfg.horizon)
         self._transcriptions: dict[str, Transcription] = {}
@@ -157,6 +180,7 @@ class TrajectoryOptimizer:
                 substeps=self.config.substeps,
                 solver=solver,  # type: ignore[arg-type]
                 solver_options=self._solver_options(solver),
+                codegen=self.config.codegen,
             )
         return self._transcriptions[solver]
 
@@ -170,7 +194,22 @@ class TrajectoryOptimizer:
             return tr.line_guess(self.task.goal, tau)
         if name == "hold":
             return tr.line_guess(x_init, tau, target=x_init)
+        if name == "kinematic":
+            return self._kinematic_guess(tr, x_init, tau)
         raise ValueError(f"unknown guess {name!r}; use one of {GUESS_NAMES}")
+
+    def _kinematic_guess(self, tr: Transcription, x_init: np.ndarray, tau: float) -> np.ndarray:
+        m = tr.horizon
+        s = np.linspace(0.0, 1.0, m + 1)[:, None]
+        states = (1 - s) * x_init + s * self.task.goal
+        for ip, iv in KINEMATIC_PAIRS.get(self.task.name, ()):
+            # Velocity linear in time from the start's; its mean covers the distance to the goal in tau.
+            v0 = x_init[iv]
+            v1 = 2 * (self.task.goal[ip] - x_init[ip]) / tau - v0
+            states[:, iv] = v0 + (v1 - v0) * s[:, 0]
+            states[:, ip] = x_init[ip] + tau * (v0 * s[:, 0] + 0.5 * (v1 - v0) * s[:, 0] ** 2)
+        steps = np.full(m, tau / m) if tr.free_time else None
+        return tr.pack_guess(states, np.zeros((m, self.task.nu)), steps)
 
     def _plan(self) -> list[tuple[str, str]]:
         cfg = self.config
@@ -290,3 +329,52 @@ class TrajectoryOptimizer:
             solve_time=solve_time,
             attempts=labels,
         )
+
+
+@functools.cache
+def _fine_replay(task: Task, nsub: int) -> ca.Function:
+    """``(x, c, u, dt) -> (x, c)`` after ``nsub`` RK4 substeps of ``dt`` of the state and the running cost."""
+    xa = ca.SX.sym("xa", task.nx + 1)
+    u = ca.SX.sym("u", task.nu)
+    x = xa[: task.nx]
+    aug = ca.Function("aug", [xa, u], [ca.vertcat(task.dynamics(x, u), task.stage_cost(x, u))])
+    step = rk4_map(aug, task.nx + 1, task.nu, 1, f"{task.name}_fine")
+    acc = step.mapaccum("acc", nsub, [0], [0])
+    xs, us, dts = ca.MX.sym("x", task.nx + 1), ca.MX.sym("u", task.nu), ca.MX.sym("dt")
+    out = acc(xs, ca.repmat(us, 1, nsub), ca.repmat(dts, 1, nsub))
+    return ca.Function(f"{task.name}_replay_{nsub}", [xs, us, dts], [out[:, -1]])
+
+
+def integrator_error(task: Task, result: SolveResult, max_substep: float = 1e-4) -> dict[str, float]:
+    """Accuracy of a solved trajectory against a fine RK4 (substeps <= ``max_substep``, inputs held per interval).
+
+    Returns:
+        ``max_state_error``: the integrator error, largest one-interval ``|x_{k+1} - Phi_fine(x_k, u_k, h_k)|_inf``
+        (the defect the transcription's RK4 leaves against the true flow).
+        ``cost_quadrature_rel_error``: the transcription's running cost (rectangle rule ``h_k l(x_k, u_k)``, SPEC §1)
+        against the fine integral of ``l`` along each interval, ``|diff| / max(V, 1)`` (zero for the glider, whose
+        ``l`` depends on ``u`` only).
+        ``replay_final_error``, ``replay_cost_rel_error``: open-loop replay of the inputs from ``x_init``. The
+        acrobot's goal is unstable, so its 5 s replay drifts by construction even with an exact integrator: for
+        information only.
+    """
+    steps = np.asarray(result.steps, dtype=float)
+    nsub = max(1, int(np.ceil(steps.max() / max_substep - 1e-9)))
+    replay = _fine_replay(task, nsub)
+    max_err = 0.0
+    fine_cost = 0.0
+    x_open = np.append(result.states[0], 0.0)
+    for k, h in enumerate(steps):
+        local = np.asarray(replay(np.append(result.states[k], 0.0), result.controls[k], h / nsub)).ravel()
+        max_err = max(max_err, float(np.max(np.abs(local[: task.nx] - result.states[k + 1]))))
+        fine_cost += float(local[-1])
+        x_open = np.asarray(replay(x_open, result.controls[k], h / nsub)).ravel()
+    terminal = task.terminal_cost_value(result.states[-1])
+    value = float(result.cost_to_go[0])
+    open_cost = float(x_open[-1]) + task.terminal_cost_value(x_open[: task.nx])
+    return {
+        "max_state_error": max_err,
+        "cost_quadrature_rel_error": abs(fine_cost + terminal - value) / max(abs(value), 1.0),
+        "replay_final_error": float(np.max(np.abs(x_open[: task.nx] - result.states[-1]))),
+        "replay_cost_rel_error": abs(open_cost - value) / max(abs(value), 1e-12),
+    }
