@@ -154,3 +154,35 @@ def test_without_the_retry_options_the_same_kill_loses_the_chunk(
     monkeypatch.setattr(parallel, "_ray_actor_class", lambda _ray: NoRetry)
     with pytest.raises(ray.exceptions.RayActorError):
         _solve_while_killing(_acrobot_starts(8))
+
+
+def test_training_on_ray_equals_training_in_process(local_ray: Any, tmp_path: Path) -> None:
+    """The same job (``seagul train --backend ray``): identical dataset and weights to the in-process run."""
+    from seagul_learn.training import TrainConfig, train
+
+    def run(name: str, **runtime: Any) -> Any:
+        config = TrainConfig(
+            task="acrobot",
+            sampler="adversarial",
+            budget=4,
+            solves_per_round=2,
+            train_steps_per_round=10,
+            batch_size=32,
+            pretrain_solves=2,
+            pretrain_steps=5,
+            adv_max_steps=2,
+            seed=7,
+            validate=False,
+            progress=False,
+            **runtime,
+        )
+        return train(config, tmp_path / name)
+
+    local, remote = run("local"), run("ray", backend="ray", workers=2)
+    recs_local, recs_remote = local.dataset.records(), remote.dataset.records()
+    assert len(recs_local) == len(recs_remote) == 2 + 4
+    for a, b in zip(recs_local, recs_remote, strict=True):
+        arrays_a, arrays_b = a.to_arrays(), b.to_arrays()
+        for key in arrays_a.keys() - {"solve_time"}:
+            np.testing.assert_array_equal(arrays_a[key], arrays_b[key], err_msg=f"record {a.index}: {key}")
+    np.testing.assert_array_equal(local.network.casadi_parameters(), remote.network.casadi_parameters())
