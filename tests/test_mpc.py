@@ -207,11 +207,14 @@ def test_terminal_cost_equals_the_value_network_it_wraps():
     with torch.no_grad():
         net.layers[-1].bias.fill_(3.0)  # keep V > 0 so the clamp is inactive on most points
     box = (task.goal - 1.0, task.goal + 1.0)
-    mpc = LimitedLookaheadMPC(task, net, 5, trust_box=box, trust_weight=7.0, **FAST)
+    mpc = LimitedLookaheadMPC(task, net, 5, trust_region="box", trust_box=box, trust_weight=7.0, **FAST)
+    prior = LimitedLookaheadMPC(task, net, 5, trust_region="lqr", clamp=False, **FAST)
     plain = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, **FAST)
     for x, tau in zip(task.sample_x0(rng, 5), rng.uniform(0.5, 4.5, 5), strict=True):
         expected = float(net.predict(x[None], tau)[0])
         assert plain.terminal_cost_value(x, tau) == pytest.approx(expected, rel=1e-10, abs=1e-10)
+        lf = task.terminal_cost_value(x)
+        assert prior.terminal_cost_value(x, tau) == pytest.approx(expected + lf, rel=1e-10, abs=1e-10)
     # Outside the trust box: the quadratic wall is added (in box widths).
     x = task.goal + np.array([1.5, 0.0, 0.0, -1.2])
     v = float(net.predict(x[None], 2.0)[0])

@@ -1,0 +1,452 @@
+"""Closed-loop evaluation: run policies from a grid of starts through the Gymnasium envs; tables and figures.
+
+Policies are described by :class:`PolicySpec` (picklable) and built inside each worker process (solvers are not
+picklable), once per process and reused for every episode there: ``"mpc"`` (a limited-lookahead MPC with a saved
+value network, or the task's own terminal cost without one), ``"full"`` (the full-horizon MPC), ``"lqr"`` and
+``"sb3"`` (a saved stable-baselines3 model, with its ``VecNormalize`` statistics if present).
+
+Metrics per episode (paper §6): the final distance to the goal ``||x(T) - x*||`` (acrobot: success when < 0.05),
+the trajectory cost (minus the episode return: running plus terminal cost, paper Fig. 4) and the glider's perch
+success (``|x|, |z| < 0.05`` and ``|dx|, |dz| <= 2`` at the end), plus the solver statistics of MPC policies.
+
+Outputs of :func:`write_outputs`: ``results.json`` (every episode), ``summary.json`` / ``summary.csv`` (one row per
+policy), ``heatmap.png`` (acrobot: final distance over the ``(th1, th2)`` grid at zero velocity, like Fig. 2;
+glider: trajectory cost over the ``(x, z)`` grid, like Fig. 4) and, for the glider, ``trajectories.png`` (x-z paths,
+Fig. 3 centre). Episodes are independent and every policy is deterministic, so results do not depend on the number
+of worker processes. ``seagul_control`` never imports torch: the network is loaded through ``seagul_learn`` only
+when a spec names one.
+"""
+
+from __future__ import annotations
+
+import csv
+import json
+import math
+import os
+from collections.abc import Iterator, Sequence
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from seagul_envs.tasks import make_task
+from seagul_envs.tasks.base import Task
+
+ENV_IDS = {"acrobot": "SeagulAcrobot-v0", "glider": "SeagulGlider-v0"}
+"""The env each task is evaluated in."""
+ACROBOT_SUCCESS_DISTANCE = 0.05
+"""Acrobot success: ``||x(5 s) - x*|| < 0.05`` (SPEC §2)."""
+PERCH_POSITION_TOL = 0.05
+"""Glider perch: ``|x|, |z| < 0.05`` m at the end (SPEC §3)."""
+PERCH_SPEED_TOL = 2.0
+"""Glider perch: ``|dx|, |dz| <= 2`` m/s at the end."""
+POLICY_KINDS = ("mpc", "full", "lqr", "sb3")
+
+
+@dataclass(frozen=True)
+class PolicySpec:
+    """A policy to evaluate, by description (built in the worker)."""
+
+    kind: str
+    """``"mpc"``, ``"full"``, ``"lqr"`` or ``"sb3"``."""
+    label: str = ""
+    """Name in tables and figures (default: the kind)."""
+    path: str | None = None
+    """Value network file (``"mpc"``) or SB3 model zip (``"sb3"``)."""
+    options: tuple[tuple[str, Any], ...] = ()
+    """Constructor options (e.g. ``(("horizon", 5), ("trust_region", "box"))``)."""
+
+    def __post_init__(self) -> None:
+        if self.kind not in POLICY_KINDS:
+            raise ValueError(f"unknown policy kind {self.kind!r}; use one of {list(POLICY_KINDS)}")
+        if self.kind == "sb3" and not self.path:
+            raise ValueError("an 'sb3' policy needs the path of a saved model")
+        if self.path is not None and not Path(self.path).is_file():
+            raise FileNotFoundError(f"{self.kind} policy file {self.path!r} does not exist")
+
+    @property
+    def name(self) -> str:
+        """The label, or the kind when no label was given."""
+        return self.label or self.kind
+
+    def option_dict(self) -> dict[str, Any]:
+        """The options as a dict."""
+        return dict(self.options)
+
+
+@dataclass
+class EpisodeResult:
+    """One closed-loop episode."""
+
+    policy: str
+    index: int
+    start: list[float]
+    final_state: list[float]
+    final_distance: float
+    cost: float
+    success: bool
+    """Acrobot: final distance < 0.05; glider: perched."""
+    terminated: bool
+    """Left the task's state bounds (glider crash)."""
+    steps: int
+    solve_times: list[float] = field(default_factory=list)
+    """Solver wall time per step (s), MPC policies only."""
+    fallbacks: int = 0
+    """Steps whose action did not come from a converged solve."""
+    states: list[list[float]] = field(default_factory=list)
+    """The visited states (first to last) when recorded."""
+
+
+# ------------------------------------------------------------------------------------------------ starts
+def start_grid(task: Task, n: int) -> tuple[np.ndarray, dict[str, Any]]:
+    """``n x n`` starts and a description of the grid's axes.
+
+    Acrobot: ``(th1, th2)`` over X0's angle box at zero velocity (Fig. 2). Glider: ``(x, z)`` over X0 with the other
+    coordinates at the centre of X0 (Fig. 4).
+    """
+    if int(n) < 1:
+        raise ValueError(f"grid size must be >= 1, got {n}")
+    n = int(n)
+    centre = 0.5 * (task.x0_low + task.x0_high)
+    dims = (0, 1)  # acrobot: th1, th2; glider: x, z
+    axes = [np.linspace(task.x0_low[d], task.x0_high[d], n) if n > 1 else np.array([centre[d]]) for d in dims]
+    starts = []
+    for a in axes[0]:
+        for b in axes[1]:
+            x = centre.copy()
+            if task.name == "acrobot":
+                x[2:] = 0.0
+            x[dims[0]], x[dims[1]] = a, b
+            starts.append(x)
+    info = {
+        "dims": [task.state_names[d] for d in dims],
+        "axes": [ax.tolist() for ax in axes],
+        "shape": [n, n],
+    }
+    return np.array(starts), info
+
+
+# ------------------------------------------------------------------------------------------------ policies
+class SB3Policy:
+    """A saved stable-baselines3 model behind the predictor protocol, normalising observations if needed."""
+
+    def __init__(self, task: Task, path: str, algo: str = "PPO", vecnormalize: str | None = None) -> None:
+        import gymnasium as gym
+        import stable_baselines3
+        from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+        import seagul_envs  # noqa: F401  (registers the envs)
+
+        cls = getattr(stable_baselines3, algo, None)
+        if cls is None:
+            raise ValueError(f"unknown stable-baselines3 algorithm {algo!r}")
+        self.model = cls.load(path, device="cpu")
+        stats = vecnormalize or _vecnormalize_beside(path)
+        self.normalizer: Any = None
+        if stats is not None:
+            venv = DummyVecEnv([lambda: gym.make(ENV_IDS[task.name])])
+            self.normalizer = VecNormalize.load(stats, venv)
+            self.normalizer.training = False
+            self.normalizer.norm_reward = False
+
+    def predict(
+        self, observation: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True
+    ) -> tuple[np.ndarray, Any]:
+        obs = np.asarray(observation, dtype=np.float32)
+        if self.normalizer is not None:
+            obs = self.normalizer.normalize_obs(obs)
+        return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
+
+
+def _vecnormalize_beside(path: str) -> str | None:
+    """``vecnormalize.pkl`` next to the model file, if any."""
+    candidate = Path(path).with_name("vecnormalize.pkl")
+    return str(candidate) if candidate.is_file() else None
+
+
+_POLICIES: dict[tuple[str, PolicySpec], Any] = {}
+
+
+def build_policy(task_name: str, spec: PolicySpec) -> Any:
+    """The predictor described by ``spec`` (cached per process: solvers are built once)."""
+    key = (task_name, spec)
+    if key in _POLICIES:
+        return _POLICIES[key]
+    task = make_task(task_name)
+    options = spec.option_dict()
+    if spec.kind == "lqr":
+        from seagul_control.lqr import LQRPolicy
+
+        policy: Any = LQRPolicy(task, **options)
+    elif spec.kind == "full":
+        from seagul_control.mpc import FullHorizonMPC
+
+        policy = FullHorizonMPC(task, **options)
+    elif spec.kind == "mpc":
+        from seagul_control.mpc import LimitedLookaheadMPC
+
+        value_function = None
+        if spec.path is not None:
+            from seagul_learn.value_network import ValueNetwork  # the only torch import, and only when asked
+
+            value_function = ValueNetwork.load(spec.path)
+        horizon = int(options.pop("horizon", default_horizon(task)))
+        policy = LimitedLookaheadMPC(task, value_function, horizon, **options)
+    else:
+        policy = SB3Policy(task, str(spec.path), **options)
+    _POLICIES[key] = policy
+    return policy
+
+
+def default_horizon(task: Task) -> int:
+    """Paper §6: 5 steps (0.5 s) for the acrobot; about 250 ms (10 control periods) for the glider."""
+    return 5 if task.name == "acrobot" else max(1, round(0.25 / task.control_period))
+
+
+# ------------------------------------------------------------------------------------------------ episodes
+def run_episode(
+    task_name: str, spec: PolicySpec, x0: np.ndarray, index: int = 0, record: bool = False
+) -> EpisodeResult:
+    """One episode from ``x0`` at the nominal time to go."""
+    import gymnasium as gym
+
+    import seagul_envs  # noqa: F401  (registers the envs)
+
+    task = make_task(task_name)
+    policy = build_policy(task_name, spec)
+    env = gym.make(ENV_IDS[task_name])
+    obs, info = env.reset(options={"state": np.asarray(x0, dtype=float)})
+    stats = getattr(policy, "stats", None)
+    first_stat = len(stats) if stats is not None else 0
+    states = [info["state"].tolist()] if record else []
+    total, steps, start, done, terminated = 0.0, 0, True, False, False
+    while not done:
+        action, _ = policy.predict(obs, episode_start=np.array([start]), deterministic=True)
+        start = False
+        obs, reward, terminated, truncated, info = env.step(action)
+        total += float(reward)
+        steps += 1
+        done = terminated or truncated
+        if record:
+            states.append(info["state"].tolist())
+    env.close()
+    x = np.asarray(info["state"], dtype=float)
+    distance = float(np.linalg.norm(x - task.goal))
+    episode = [] if stats is None else list(stats[first_stat:])
+    if stats is not None:
+        stats.clear()  # keep worker memory flat over many episodes
+    return EpisodeResult(
+        policy=spec.name,
+        index=index,
+        start=np.asarray(x0, dtype=float).tolist(),
+        final_state=x.tolist(),
+        final_distance=distance,
+        cost=-total,
+        success=is_success(task, x, bool(terminated)),
+        terminated=bool(terminated),
+        steps=steps,
+        solve_times=[float(s.solve_time) for s in episode],
+        fallbacks=sum(1 for s in episode if s.source != "solver"),
+        states=states,
+    )
+
+
+def is_success(task: Task, x: np.ndarray, terminated: bool = False) -> bool:
+    """Acrobot: ``||x - x*|| < 0.05``; glider: perched (position and speed tolerances) without crashing."""
+    if task.name == "glider":
+        return bool(
+            not terminated
+            and abs(x[0]) < PERCH_POSITION_TOL
+            and abs(x[1]) < PERCH_POSITION_TOL
+            and abs(x[4]) <= PERCH_SPEED_TOL
+            and abs(x[5]) <= PERCH_SPEED_TOL
+        )
+    return bool(np.linalg.norm(x - task.goal) < ACROBOT_SUCCESS_DISTANCE)
+
+
+def _run_chunk(
+    task_name: str, spec: PolicySpec, starts: np.ndarray, indices: Sequence[int], record: bool
+) -> list[EpisodeResult]:
+    return [run_episode(task_name, spec, x0, i, record) for x0, i in zip(starts, indices, strict=True)]
+
+
+def evaluate(
+    task_name: str,
+    specs: Sequence[PolicySpec],
+    starts: np.ndarray,
+    workers: int = 1,
+    progress: bool = True,
+    record: bool = False,
+    chunk_size: int = 4,
+) -> list[EpisodeResult]:
+    """Every policy from every start (joblib processes when ``workers > 1``); results ordered by policy, start."""
+    from joblib import Parallel, delayed
+    from tqdm.auto import tqdm
+
+    task = make_task(task_name)
+    starts = np.asarray(starts, dtype=float)
+    if starts.ndim != 2 or starts.shape[1] != task.nx:
+        raise ValueError(f"starts must have shape (n, {task.nx}), got {starts.shape}")
+    if int(workers) < 1:
+        raise ValueError(f"workers must be >= 1, got {workers}")
+    names = [s.name for s in specs]
+    if len(set(names)) != len(names):
+        raise ValueError(f"policy labels must be unique, got {names}")
+    # Build each policy here first: a JIT compile then happens once and the workers load the cached object code.
+    for spec in specs:
+        build_policy(task_name, spec)
+    jobs = []
+    for spec in specs:
+        for lo in range(0, len(starts), chunk_size):
+            idx = list(range(lo, min(lo + chunk_size, len(starts))))
+            jobs.append((spec, idx))
+    bar = tqdm(total=len(specs) * len(starts), desc=f"evaluate {task_name}", disable=not progress)
+    results: list[EpisodeResult] = []
+    if workers == 1:
+        outputs: Iterator[list[EpisodeResult]] = (
+            _run_chunk(task_name, spec, starts[idx], idx, record) for spec, idx in jobs
+        )
+    else:
+        outputs = Parallel(n_jobs=int(workers), return_as="generator")(
+            delayed(_run_chunk)(task_name, spec, starts[idx], idx, record) for spec, idx in jobs
+        )
+    for chunk in outputs:
+        results.extend(chunk)
+        bar.update(len(chunk))
+    bar.close()
+    order = {name: k for k, name in enumerate(names)}
+    results.sort(key=lambda r: (order[r.policy], r.index))
+    return results
+
+
+# ------------------------------------------------------------------------------------------------ summaries
+def summarize(task_name: str, results: Sequence[EpisodeResult]) -> list[dict[str, Any]]:
+    """One row per policy: success rate, mean distance and cost, solver step times and fallbacks."""
+    rows = []
+    for name in dict.fromkeys(r.policy for r in results):
+        rs = [r for r in results if r.policy == name]
+        times = np.concatenate([np.asarray(r.solve_times) for r in rs]) if rs else np.zeros(0)
+        row: dict[str, Any] = {
+            "policy": name,
+            "episodes": len(rs),
+            "success_rate": float(np.mean([r.success for r in rs])),
+            "mean_final_distance": float(np.mean([r.final_distance for r in rs])),
+            "median_final_distance": float(np.median([r.final_distance for r in rs])),
+            "mean_cost": float(np.mean([r.cost for r in rs])),
+            "median_cost": float(np.median([r.cost for r in rs])),
+            "crashes": int(sum(r.terminated for r in rs)),
+            "median_step_ms": float(np.median(times) * 1e3) if times.size else math.nan,
+            "p95_step_ms": float(np.percentile(times, 95) * 1e3) if times.size else math.nan,
+            "max_step_ms": float(np.max(times) * 1e3) if times.size else math.nan,
+            "fallback_steps": int(sum(r.fallbacks for r in rs)),
+            "steps": int(sum(r.steps for r in rs)),
+        }
+        if task_name == "glider":
+            row["perch_success_rate"] = row["success_rate"]
+        rows.append(row)
+    return rows
+
+
+def write_outputs(
+    out_dir: str | os.PathLike[str],
+    task_name: str,
+    results: Sequence[EpisodeResult],
+    grid: dict[str, Any] | None = None,
+    extra: dict[str, Any] | None = None,
+) -> dict[str, Path]:
+    """Write the JSON/CSV tables and the PNG figures; returns their paths by name."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = summarize(task_name, results)
+    paths = {
+        "results": out / "results.json",
+        "summary_json": out / "summary.json",
+        "summary_csv": out / "summary.csv",
+    }
+    payload = {"task": task_name, "grid": grid, "episodes": [asdict(r) for r in results], **(extra or {})}
+    paths["results"].write_text(json.dumps(payload, allow_nan=True))
+    paths["summary_json"].write_text(json.dumps({"task": task_name, "policies": rows, **(extra or {})}, indent=2))
+    with paths["summary_csv"].open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    if grid is not None:
+        paths["heatmap"] = plot_heatmaps(task_name, results, grid, out / "heatmap.png")
+    if task_name == "glider" and any(r.states for r in results):
+        paths["trajectories"] = plot_glider_trajectories(results, out / "trajectories.png")
+    return paths
+
+
+def plot_heatmaps(task_name: str, results: Sequence[EpisodeResult], grid: dict[str, Any], path: Path) -> Path:
+    """One panel per policy: final distance (acrobot, log colour) or trajectory cost (glider) over the grid."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+
+    names = list(dict.fromkeys(r.policy for r in results))
+    n1, n2 = grid["shape"]
+    ax1, ax2 = (np.asarray(a) for a in grid["axes"])
+    metric = "final_distance" if task_name == "acrobot" else "cost"
+    values = {name: np.full((n1, n2), np.nan) for name in names}
+    success = {name: np.zeros((n1, n2), dtype=bool) for name in names}
+    for r in results:
+        i, j = divmod(r.index, n2)
+        values[r.policy][i, j] = getattr(r, metric)
+        success[r.policy][i, j] = r.success
+    finite = np.concatenate([v[np.isfinite(v)].ravel() for v in values.values()])
+    vmin = max(float(np.min(finite)), 1e-4) if finite.size else 1e-4
+    vmax = max(float(np.max(finite)), vmin * 10) if finite.size else 1.0
+    fig, axes = plt.subplots(1, len(names), figsize=(3.6 * len(names) + 0.8, 3.4), squeeze=False)
+    image = None
+    for ax, name in zip(axes[0], names, strict=True):
+        # Cells centred on the grid points.
+        d1 = (ax1[-1] - ax1[0]) / (n1 - 1) if n1 > 1 else 1.0
+        d2 = (ax2[-1] - ax2[0]) / (n2 - 1) if n2 > 1 else 1.0
+        extent = (ax2[0] - d2 / 2, ax2[-1] + d2 / 2, ax1[0] - d1 / 2, ax1[-1] + d1 / 2)
+        image = ax.imshow(
+            values[name], origin="lower", extent=extent, aspect="auto", cmap="viridis", norm=LogNorm(vmin, vmax)
+        )
+        fail = np.argwhere(~success[name])
+        if fail.size:
+            ax.scatter(ax2[fail[:, 1]], ax1[fail[:, 0]], marker="x", s=10, c="white", linewidths=0.6)
+        ax.set_title(f"{name}\nsuccess {success[name].mean():.0%}", fontsize=9)
+        ax.set_xlabel(grid["dims"][1])
+        ax.set_ylabel(grid["dims"][0])
+    label = "||x(T) - x*||" if metric == "final_distance" else "trajectory cost"
+    if image is not None:
+        fig.colorbar(image, ax=list(axes[0]), label=label + " (log)")
+    fig.suptitle(f"{task_name}: {label} over the start grid (x = failure)", fontsize=10, y=1.08)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def plot_glider_trajectories(results: Sequence[EpisodeResult], path: Path, max_per_policy: int = 9) -> Path:
+    """x-z paths of recorded glider episodes, one colour per policy; the perch at the origin (Fig. 3 centre)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(dict.fromkeys(r.policy for r in results))
+    fig, ax = plt.subplots(figsize=(7, 3.6))
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for k, name in enumerate(names):
+        recorded = [r for r in results if r.policy == name and r.states]
+        picks = recorded[:: max(1, len(recorded) // max_per_policy)][:max_per_policy]
+        for m, r in enumerate(picks):
+            s = np.asarray(r.states)
+            ax.plot(s[:, 0], s[:, 1], color=colors[k % len(colors)], lw=1, alpha=0.8, label=name if m == 0 else None)
+            ax.plot(s[-1, 0], s[-1, 1], "o" if r.success else "x", color=colors[k % len(colors)], ms=4)
+    ax.plot([0], [0], marker="*", ms=12, color="k", label="perch")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("z (m)")
+    ax.set_title("glider trajectories (o = perched, x = missed)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    return path

@@ -1,0 +1,100 @@
+"""``seagul evaluate``: closed-loop evaluation of policies from a grid of starts (paper Figs. 2-4).
+
+Example::
+
+    seagul evaluate --task acrobot --network runs/acrobot/network.pt --lqr --full-horizon \\
+        --sb3 runs/ppo_acrobot/model.zip --grid 20 --workers 2 --out results/eval_acrobot
+
+writes ``summary.json``/``summary.csv``/``results.json``, ``heatmap.png`` and (glider) ``trajectories.png`` into
+``--out`` (see :mod:`seagul_control.evaluation`). Several ``--network`` files may be given (one MPC each, labelled
+by ``--label`` or the file's parent directory).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from seagul_learn.cli import Command
+from seagul_learn.commands._args import add_task_argument, positive_int
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Declare the ``evaluate`` arguments."""
+    add_task_argument(parser)
+    parser.add_argument("--out", required=True, help="output directory (created if missing)")
+    parser.add_argument("--network", action="append", default=[], help="value network file for an MPC (repeatable)")
+    parser.add_argument("--label", action="append", default=[], help="label of each --network MPC, in order")
+    parser.add_argument("--task-terminal", action="store_true", help="also the MPC with the task's own l_f")
+    parser.add_argument("--lqr", action="store_true", help="include the (clipped, TV for the glider) LQR reference")
+    parser.add_argument("--full-horizon", action="store_true", help="include the full-horizon MPC (slow)")
+    parser.add_argument("--sb3", action="append", default=[], help="a saved SB3 model zip (repeatable)")
+    parser.add_argument("--sb3-algo", default="PPO", help="SB3 algorithm class of the --sb3 models (default PPO)")
+    parser.add_argument("--horizon", type=positive_int, default=None, help="MPC steps (default: 5 / 10)")
+    parser.add_argument(
+        "--trust-region", choices=("lqr", "box", "none"), default="lqr", help="guard of the learned terminal cost"
+    )
+    parser.add_argument("--no-jit", action="store_true", help="solve interpreted (no C compiler needed)")
+    parser.add_argument("--grid", type=positive_int, default=None, help="grid points per axis (default 20 / 6)")
+    parser.add_argument("--workers", type=positive_int, default=1, help="parallel processes (default 1)")
+    parser.add_argument("--no-progress", action="store_true", help="hide progress bars")
+
+
+def specs_from_args(args: argparse.Namespace) -> list[Any]:
+    """The :class:`~seagul_control.evaluation.PolicySpec` list the arguments ask for."""
+    from seagul_control.evaluation import PolicySpec
+
+    if len(args.label) > len(args.network):
+        raise ValueError(f"--label given {len(args.label)} times but --network only {len(args.network)} times")
+    mpc_options: list[tuple[str, Any]] = [("jit", not args.no_jit)]
+    if args.horizon is not None:
+        mpc_options.append(("horizon", args.horizon))
+    specs = []
+    for k, path in enumerate(args.network):
+        label = args.label[k] if k < len(args.label) else f"mpc[{Path(path).parent.name or Path(path).stem}]"
+        specs.append(PolicySpec("mpc", label, path, (*mpc_options, ("trust_region", args.trust_region))))
+    if args.task_terminal:
+        specs.append(PolicySpec("mpc", "mpc[task l_f]", None, tuple(mpc_options)))
+    if args.lqr:
+        specs.append(PolicySpec("lqr", "lqr"))
+    if args.full_horizon:
+        specs.append(PolicySpec("full", "full-horizon"))
+    for path in args.sb3:
+        specs.append(
+            PolicySpec("sb3", f"sb3[{Path(path).parent.name or Path(path).stem}]", path, (("algo", args.sb3_algo),))
+        )
+    if not specs:
+        raise ValueError("no policy to evaluate: give --network, --task-terminal, --lqr, --full-horizon or --sb3")
+    return specs
+
+
+def run(args: argparse.Namespace) -> int:
+    """Evaluate, write the tables and figures, print one line per policy; the last line is the output directory."""
+    from seagul_control.evaluation import evaluate, start_grid, summarize, write_outputs
+    from seagul_envs import make_task
+
+    task = make_task(args.task)
+    specs = specs_from_args(args)
+    n = args.grid if args.grid is not None else (20 if args.task == "acrobot" else 6)
+    starts, grid = start_grid(task, n)
+    results = evaluate(
+        args.task, specs, starts, workers=args.workers, progress=not args.no_progress, record=args.task == "glider"
+    )
+    write_outputs(args.out, args.task, results, grid)
+    for row in summarize(args.task, results):
+        print(
+            f"{row['policy']}: success {row['success_rate']:.1%}, mean distance {row['mean_final_distance']:.4g}, "
+            f"mean cost {row['mean_cost']:.4g}, step median {row['median_step_ms']:.3g} ms, "
+            f"p95 {row['p95_step_ms']:.3g} ms, fallbacks {row['fallback_steps']}"
+        )
+    print(Path(args.out))
+    return 0
+
+
+COMMAND = Command(
+    name="evaluate",
+    help="closed-loop evaluation of MPC/LQR/full-horizon/SB3 policies over a grid of starts (tables + figures)",
+    add_arguments=add_arguments,
+    run=run,
+)
