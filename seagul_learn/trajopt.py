@@ -85,7 +85,14 @@ class TrajOptConfig:
     """Extra options for every solver (e.g. ``(("ipopt.linear_solver", "mumps"),)``), merged last."""
 
     def with_updates(self, **changes: Any) -> TrajOptConfig:
-        """A copy with some fields changed (``solver_options`` may be given as a dict)."""
+        """A copy with some fields changed (``solver_options`` may be given as a dict).
+
+        Raises:
+            ValueError: a name that is not a field.
+        """
+        unknown = set(changes) - {f.name for f in dataclasses.fields(TrajOptConfig)}
+        if unknown:
+            raise ValueError(f"unknown TrajectoryOptimizer options {sorted(unknown)}")
         if isinstance(changes.get("solver_options"), dict):
             changes["solver_options"] = tuple(sorted(changes["solver_options"].items()))
         if isinstance(changes.get("guesses"), list):
@@ -145,9 +152,6 @@ class TrajectoryOptimizer:
         self.task: Task = make_task(task) if isinstance(task, str) else task
         cfg = config or TrajOptConfig()
         if options:
-            unknown = set(options) - {f.name for f in dataclasses.fields(TrajOptConfig)}
-            if unknown:
-                raise ValueError(f"unknown TrajectoryOptimizer options {sorted(unknown)}")
             cfg = cfg.with_updates(**options)
         cfg.validate()
         cfg = cfg.resolved(self.task.name)
