@@ -50,6 +50,8 @@ EXTRA_VARIANTS: dict[str, dict[str, Any]] = {
     "adversarial-reflect": {"sampler": "adversarial", "adv_projection": "reflect"},
     "adversarial-mix": {"sampler": "adversarial", "adv_projection": "reflect", "adv_uniform_fraction": 0.5},
     "adversarial-adam": {"sampler": "adversarial", "adv_optimizer": "adam"},
+    "adversarial-short": {"sampler": "adversarial", "adv_max_steps": 2, "adv_step_fraction": 0.2},
+    "adversarial-stop": {"sampler": "adversarial", "adv_projection": "reflect", "adv_stop_on_decrease": True},
 }
 
 

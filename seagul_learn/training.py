@@ -129,6 +129,8 @@ class TrainConfig:
     """Adversarial: share of each round's solves spent on uniform draws."""
     adv_ascend_tau: bool = True
     """Adversarial: ascend in ``tau`` too when T0 is an interval."""
+    adv_stop_on_decrease: bool = False
+    """Adversarial: end a chain when its loss decreased from the previous iterate."""
     uniform_tau: bool = False
     """Draw uniform starts' ``tau`` from T0 instead of using the nominal value."""
     eval_every: int = 0
@@ -189,6 +191,7 @@ class TrainConfig:
             projection=self.adv_projection,  # type: ignore[arg-type]
             uniform_fraction=self.adv_uniform_fraction,
             ascend_tau=self.adv_ascend_tau,
+            stop_on_decrease=self.adv_stop_on_decrease,
         )
 
     @property

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import pytest
 from toy_problem import ToySolver
@@ -178,3 +180,26 @@ def test_cached_batch_solver_reuses_bit_identical_requests(tmp_path):
     other = CachedBatchSolver(toy, tmp_path / "c", "toy-v2")  # another solver never shares entries
     other(starts, taus)
     assert toy.num_solves == 18
+
+
+def test_stop_on_decrease_ends_chains_that_overshoot():
+    task = make_task("acrobot")
+    toy = ToySolver(task)
+    net = _network(task)
+    pool = StartPool.uniform(task, 40, np.random.default_rng(0))
+    opts = AdversarialOptions(step_fraction=0.6, stop_on_decrease=True, max_steps=5)
+    recs = AdversarialSampler(task, pool, opts).sample(30, net, SolveRunner(toy))
+    by_chain: dict[int, list] = {}
+    for r in recs:
+        by_chain.setdefault(r.chain, []).append(r)
+
+    def loss(r):
+        return 0.5 * (r.value - float(net.predict(r.x_init, r.tau)[0])) ** 2
+
+    overshoots = 0
+    for chain in by_chain.values():
+        losses = [loss(r) for r in chain]
+        # every iterate but the last had a loss at least its predecessor's (else the chain would have ended)
+        assert all(b >= a for a, b in itertools.pairwise(losses[:-1]))
+        overshoots += len(losses) >= 2 and losses[-1] < losses[-2]
+    assert overshoots > 0  # big steps overshoot, and those chains end there
