@@ -1,0 +1,187 @@
+"""Benchmark of the trajectory optimizer: speed, robustness, accuracy and label consistency over uniform draws from X0.
+
+Usage: ``python benchmarks/bench_trajopt.py [--quick] [--workers 2] [--seed 0]``. The last line printed is a JSON
+object ``{"acrobot": {"median_ms", "p95_ms", "success_rate", "n", ...}, "glider": {...}, "parallel_speedup": ...,
+"machine": {...}}``. Times are wall-clock per solve (``SolveResult.solve_time``, fallbacks included); ``cpu_*`` are
+the solving thread's CPU times, which show what an unloaded core would give when other jobs share the machine.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from seagul_envs.tasks import make_task
+from seagul_learn.parallel import solve_many
+from seagul_learn.results import SolveResult
+from seagul_learn.trajopt import TrajectoryOptimizer, integrator_error
+
+
+def machine_info() -> dict[str, Any]:
+    model = "unknown"
+    try:
+        with open("/proc/cpuinfo") as f:
+            model = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), model)
+    except OSError:
+        pass
+    return {
+        "cpu": model,
+        "cores": os.cpu_count(),
+        "load_avg": [round(v, 2) for v in os.getloadavg()],
+        "python": platform.python_version(),
+        "casadi": ca.__version__,
+    }
+
+
+def bench_task(name: str, n: int, seed: int, n_accuracy: int, n_consistency: int) -> dict[str, Any]:
+    task = make_task(name)
+    t0 = time.perf_counter()
+    opt = TrajectoryOptimizer(name)
+    build_s = time.perf_counter() - t0
+    rng = np.random.default_rng(seed)
+    opt.solve(task.sample_x0(np.random.default_rng(seed + 999)))  # warm-up (builds the fallback solver)
+    starts = task.sample_x0(rng, n)
+    results: list[SolveResult] = []
+    cpu: list[float] = []
+    for x in starts:
+        c0 = time.thread_time()
+        results.append(opt.solve(x))
+        cpu.append(time.thread_time() - c0)
+    wall = np.array([r.solve_time for r in results]) * 1e3
+    cpu_ms = np.array(cpu) * 1e3
+    ok = np.array([r.success for r in results])
+    failures: dict[str, int] = {}
+    for r in results:
+        if not r.success:
+            failures[r.status] = failures.get(r.status, 0) + 1
+    first_attempt: dict[str, int] = {}
+    for r in results:
+        if r.success:
+            first_attempt[r.attempts[-1]] = first_attempt.get(r.attempts[-1], 0) + 1
+    out: dict[str, Any] = {
+        "median_ms": round(float(np.median(wall)), 2),
+        "p95_ms": round(float(np.percentile(wall, 95)), 2),
+        "max_ms": round(float(wall.max()), 1),
+        "success_rate": round(float(ok.mean()), 4),
+        "n": n,
+        "cpu_median_ms": round(float(np.median(cpu_ms)), 2),
+        "cpu_p95_ms": round(float(np.percentile(cpu_ms, 95)), 2),
+        "median_iterations": float(np.median([r.iterations for r in results])),
+        "fallback_rate": round(float(np.mean([len(r.attempts) > 1 for r in results])), 4),
+        "solved_by": first_attempt,
+        "failure_statuses": failures,
+        "build_s": round(build_s, 2),
+        "config": {"solver": opt.config.solver, "fallback": opt.config.fallback_solver, "guesses": opt.config.guesses},
+    }
+    good = [r for r in results if r.success]
+    if good:
+        values = np.array([r.value for r in good])
+        out["value_range"] = [round(float(values.min()), 4), round(float(values.max()), 4)]
+        errs = [integrator_error(task, r, max_substep=1e-4) for r in good[:n_accuracy]]
+        out["integrator"] = {
+            "n": len(errs),
+            "max_state_error": float(f"{max(e['max_state_error'] for e in errs):.3g}"),
+            "max_cost_quadrature_rel_error": float(f"{max(e['cost_quadrature_rel_error'] for e in errs):.3g}"),
+            "median_replay_final_error": float(f"{np.median([e['replay_final_error'] for e in errs]):.3g}"),
+        }
+        out["local_optima"] = local_optima(opt, good[:n_consistency])
+    return out
+
+
+def local_optima(opt: TrajectoryOptimizer, results: list[SolveResult]) -> dict[str, Any]:
+    """How often a start's label depends on the initial guess, and how often nearby starts disagree.
+
+    * ``guess_disagreement``: the same start re-solved from each other guess (same solver chain); fraction whose
+      value differs by more than 1e-4 relative from the label, and fraction where another guess was strictly better.
+    * ``neighbour_jumps``: a start moved by 1e-3 of the X0 box width; fraction where ``V(x + d)`` differs from the
+      first-order prediction ``V(x) + grad . d`` by more than 1e-3 relative (a different local optimum).
+    """
+    task = opt.task
+    width = np.where(task.x0_high > task.x0_low, task.x0_high - task.x0_low, 0.0)
+    rng = np.random.default_rng(1234)
+    differ = better = jumps = checked = 0
+    gaps: list[float] = []
+    others = [g for g in ("line", "goal", "kinematic") if g in ("line", "goal") or task.name == "glider"]
+    for r in results:
+        alt_values = []
+        for g in others:
+            att = opt._attempt(opt.config.fallback_solver, g, r.x_init, r.tau)
+            if att.sol.success:
+                alt_values.append(att.sol.objective)
+        if alt_values:
+            checked += 1
+            rel = [abs(v - r.value) / max(abs(r.value), 1e-9) for v in alt_values]
+            differ += int(max(rel) > 1e-4)
+            best = min(alt_values)
+            if best < r.value * (1 - 1e-4):
+                better += 1
+                gaps.append((r.value - best) / r.value)
+        d = rng.uniform(-1e-3, 1e-3, task.nx) * width
+        near = opt.solve(r.x_init + d, r.tau)
+        if near.success:
+            pred = r.value + float(r.grad_x @ d)
+            jumps += int(abs(near.value - pred) > 1e-3 * max(abs(r.value), 1e-9))
+    n = max(checked, 1)
+    return {
+        "n": len(results),
+        "guess_disagreement": round(differ / n, 4),
+        "another_guess_better": round(better / n, 4),
+        "median_gap_when_better": round(float(np.median(gaps)), 4) if gaps else 0.0,
+        "neighbour_jumps": round(jumps / max(len(results), 1), 4),
+    }
+
+
+def bench_parallel(n: int, workers: int, seed: int) -> dict[str, Any]:
+    task = make_task("acrobot")
+    starts = task.sample_x0(np.random.default_rng(seed + 7), n)
+    warm = task.sample_x0(np.random.default_rng(seed + 8), 2 * workers)
+    solve_many("acrobot", warm, workers=workers, progress=False)  # start the pool and build its solvers
+    t0 = time.perf_counter()
+    serial = solve_many("acrobot", starts, workers=1, progress=False)
+    t_serial = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    par = solve_many("acrobot", starts, workers=workers, progress=False)
+    t_par = time.perf_counter() - t0
+    same = all(np.array_equal(a.states, b.states) for a, b in zip(serial, par, strict=True))
+    return {
+        "n": n,
+        "workers": workers,
+        "serial_s": round(t_serial, 2),
+        "parallel_s": round(t_par, 2),
+        "speedup": round(t_serial / t_par, 2),
+        "identical": bool(same),
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--quick", action="store_true", help="fewer draws (under ~3 minutes)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    n_acro, n_glider, n_par = (200, 50, 96) if args.quick else (1000, 250, 400)
+    n_acc, n_cons = (10, 30) if args.quick else (50, 100)
+    report: dict[str, Any] = {"machine": machine_info()}
+    t0 = time.perf_counter()
+    for name, n in (("acrobot", n_acro), ("glider", n_glider)):
+        report[name] = bench_task(name, n, args.seed, n_acc, n_cons if name == "acrobot" else n_cons // 3)
+        print(f"{name}: {json.dumps(report[name])}", flush=True)
+    par = bench_parallel(n_par, args.workers, args.seed)
+    print(f"parallel: {json.dumps(par)}", flush=True)
+    report["parallel"] = par
+    report["parallel_speedup"] = par["speedup"]
+    report["machine"]["load_avg_end"] = [round(v, 2) for v in os.getloadavg()]
+    report["total_s"] = round(time.perf_counter() - t0, 1)
+    report["command"] = "python benchmarks/bench_trajopt.py" + (" --quick" if args.quick else "")
+    print(json.dumps(report))
+
+
+if __name__ == "__main__":
+    main()
