@@ -39,11 +39,20 @@ GUESS_NAMES: tuple[str, ...] = ("line", "goal", "hold", "kinematic")
 KINEMATIC_PAIRS: dict[str, tuple[tuple[int, int], ...]] = {"glider": ((0, 4), (1, 5))}
 
 #: Per-task defaults of the fields left at None in :class:`TrajOptConfig` (measured choices, docs/trajopt.md).
+#: Acrobot: over 150 uniform starts every label above 35 was a poor local optimum (43-76, while a solve from
+#: "the goal everywhere" found 20-25) and every good label was below 30, so values above 35 trigger a re-solve.
 TASK_DEFAULTS: dict[str, dict[str, Any]] = {
-    "acrobot": {"solver": "fatrop", "guesses": ("line", "goal")},
-    "glider": {"solver": "fatrop", "guesses": ("kinematic", "line", "goal")},
+    "acrobot": {
+        "solver": "fatrop",
+        "guesses": ("line", "goal"),
+        "multi_start": "on_suspect",
+        "multi_start_guesses": ("line", "goal"),
+        "suspect_value": 35.0,
+    },
+    "glider": {"solver": "fatrop", "guesses": ("kinematic", "line", "goal"), "multi_start": "never"},
 }
-_GENERIC_DEFAULTS: dict[str, Any] = {"solver": "ipopt", "guesses": ("line", "goal")}
+_GENERIC_DEFAULTS: dict[str, Any] = {"solver": "ipopt", "guesses": ("line", "goal"), "multi_start": "never"}
+_FALLBACK_DEFAULTS: dict[str, Any] = {"multi_start_guesses": ("goal",), "suspect_value": float("inf")}
 
 
 @dataclass(frozen=True)
@@ -60,14 +69,14 @@ class TrajOptConfig:
     ``x_init`` at every knot, ``"kinematic"`` the line with each (position, velocity) pair of
     :data:`KINEMATIC_PAIRS` made consistent (velocity linear from the start's so that the position reaches the
     goal's at ``tau``). Inputs start at zero, steps at ``tau / m``."""
-    multi_start: Literal["never", "on_suspect", "always"] = "never"
-    """Also solve from every guess in ``multi_start_guesses`` and keep the lowest value: ``"always"``, or
-    ``"on_suspect"`` when the first successful value exceeds ``suspect_value`` (a cheap guard against poor local
-    optima; see docs/trajopt.md for how often they occur)."""
-    multi_start_guesses: tuple[str, ...] = ("goal",)
-    """Extra guesses of the multi-start."""
-    suspect_value: float = float("inf")
-    """Value above which ``multi_start="on_suspect"`` triggers."""
+    multi_start: Literal["never", "on_suspect", "always"] | None = None
+    """Also solve from every guess in ``multi_start_guesses`` (with the fallback solver) and keep the lowest value:
+    ``"always"``; ``"on_suspect"`` when the first successful value exceeds ``suspect_value`` (a cheap guard against
+    poor local optima, docs/trajopt.md); ``"never"``. None: the task's default (:data:`TASK_DEFAULTS`)."""
+    multi_start_guesses: tuple[str, ...] | None = None
+    """Extra guesses of the multi-start (None: the task's default)."""
+    suspect_value: float | None = None
+    """Value above which ``multi_start="on_suspect"`` triggers (None: the task's default)."""
     tol: float = 1e-8
     """Solver tolerance (IPOPT ``tol``, fatrop ``tol``)."""
     acceptable_tol: float = 1e-6
@@ -103,7 +112,7 @@ class TrajOptConfig:
 
     def resolved(self, task_name: str) -> TrajOptConfig:
         """A copy with the None fields filled from the task's defaults."""
-        defaults = TASK_DEFAULTS.get(task_name, _GENERIC_DEFAULTS)
+        defaults = {**_FALLBACK_DEFAULTS, **TASK_DEFAULTS.get(task_name, _GENERIC_DEFAULTS)}
         changes = {k: v for k, v in defaults.items() if getattr(self, k) is None}
         return dataclasses.replace(self, **changes) if changes else self
 
@@ -116,10 +125,10 @@ class TrajOptConfig:
                 raise ValueError(f"unknown solver {s!r}; use 'ipopt' or 'fatrop'")
         if self.guesses is not None and not self.guesses:
             raise ValueError("guesses must name at least one initial guess")
-        for gname in (*(self.guesses or ()), *self.multi_start_guesses):
+        for gname in (*(self.guesses or ()), *(self.multi_start_guesses or ())):
             if gname not in GUESS_NAMES:
                 raise ValueError(f"unknown guess {gname!r}; use one of {GUESS_NAMES}")
-        if self.multi_start not in ("never", "on_suspect", "always"):
+        if self.multi_start not in (None, "never", "on_suspect", "always"):
             raise ValueError(f"unknown multi_start {self.multi_start!r}")
         if self.max_iter < 1 or self.tol <= 0:
             raise ValueError("max_iter must be >= 1 and tol > 0")
@@ -255,10 +264,11 @@ class TrajectoryOptimizer:
                 break
         cfg = self.config
         if best is not None and (
-            cfg.multi_start == "always" or (cfg.multi_start == "on_suspect" and best.sol.objective > cfg.suspect_value)
+            cfg.multi_start == "always"
+            or (cfg.multi_start == "on_suspect" and best.sol.objective > float(cfg.suspect_value or np.inf))
         ):
             tried = {a.label for a in attempts}
-            for gname in cfg.multi_start_guesses:
+            for gname in cfg.multi_start_guesses or ():
                 label = f"{cfg.fallback_solver}:{gname}"
                 if label in tried:
                     continue

@@ -203,3 +203,16 @@ def test_bad_options_raise() -> None:
         TrajectoryOptimizer("acrobot", guesses=("lqr",))
     with pytest.raises(ValueError, match="unknown solver"):
         TrajOptConfig(solver="snopt").validate()  # type: ignore[arg-type]
+
+
+# ------------------------------------------------------------------------------------------ consistency
+def test_suspect_values_trigger_a_multi_start() -> None:
+    """From this start the line guess lands in a poor local optimum (V ~ 58); the default acrobot policy re-solves
+    from the goal guess because V > 35 and keeps the better optimum (V ~ 20), deterministically."""
+    x = np.array([3.116942, 0.041245, -0.360203, -0.38547])
+    plain = TrajectoryOptimizer("acrobot", multi_start="never").solve(x)
+    assert plain.success and plain.value > 35.0
+    guarded = TrajectoryOptimizer("acrobot").solve(x)
+    assert guarded.success and guarded.value < 30.0
+    assert "ipopt:goal" in guarded.attempts
+    assert guarded.cost_to_go[0] == guarded.value
