@@ -209,7 +209,8 @@ def test_bad_options_raise() -> None:
 def test_suspect_values_trigger_a_multi_start() -> None:
     """From this start the line guess lands in a poor local optimum (V ~ 58); the default acrobot policy re-solves
     from the goal guess because V > 35 and keeps the better optimum (V ~ 20), deterministically."""
-    x = np.array([3.116942, 0.041245, -0.360203, -0.38547])
+    # Which basin the line guess falls into is sensitive to the 7th digit, so take the exact draw.
+    x = make_task("acrobot").sample_x0(np.random.default_rng(42), 150)[14]
     plain = TrajectoryOptimizer("acrobot", multi_start="never").solve(x)
     assert plain.success and plain.value > 35.0
     guarded = TrajectoryOptimizer("acrobot").solve(x)
