@@ -164,7 +164,7 @@ def test_training_on_ray_equals_training_in_process(local_ray: Any, tmp_path: Pa
         config = TrainConfig(
             task="acrobot",
             sampler="adversarial",
-            budget=4,
+            budget=2,  # each batch call starts fresh actors (~3 s here): keep the calls few
             solves_per_round=2,
             train_steps_per_round=10,
             batch_size=32,
@@ -180,7 +180,8 @@ def test_training_on_ray_equals_training_in_process(local_ray: Any, tmp_path: Pa
 
     local, remote = run("local"), run("ray", backend="ray", workers=2)
     recs_local, recs_remote = local.dataset.records(), remote.dataset.records()
-    assert len(recs_local) == len(recs_remote) == 2 + 4
+    assert len(recs_local) == len(recs_remote) == 2 + 2
+    assert any(r.step > 0 for r in recs_local)  # an ascent iterate: a start chosen by the trained network
     for a, b in zip(recs_local, recs_remote, strict=True):
         arrays_a, arrays_b = a.to_arrays(), b.to_arrays()
         for key in arrays_a.keys() - {"solve_time"}:
