@@ -156,6 +156,19 @@ def test_killed_mid_round_and_resumed_equals_uninterrupted(reference: tuple[Path
     ref, cache = reference
     out = _interrupted_run(tmp_path, cache, [PRETRAIN + 7])  # inside the second round of solves
     _assert_identical_runs(ref, out)
+    _assert_the_comparison_detects_a_one_ulp_difference(ref, tmp_path / "copy")
+
+
+def _assert_the_comparison_detects_a_one_ulp_difference(ref: Path, copy: Path) -> None:
+    """Guard against a comparison that cannot fail: one label nudged by one ulp must be caught."""
+    shutil.copytree(ref, copy)
+    ds = Dataset.open(copy / "dataset")
+    record = ds.read(PRETRAIN + 1)
+    record.cost_to_go[3] = np.nextafter(record.cost_to_go[3], np.inf)
+    ds.record_path(record.index).unlink()
+    ds.write(record)
+    with pytest.raises(AssertionError, match="cost_to_go"):
+        _assert_identical_runs(ref, copy)
 
 
 @pytest.mark.slow
@@ -173,17 +186,3 @@ def test_killed_at_other_points_and_resumed_equals_uninterrupted(
 ) -> None:
     ref, cache = reference
     _assert_identical_runs(ref, _interrupted_run(tmp_path, cache, kill_points))
-
-
-def test_the_comparison_detects_a_one_ulp_difference(reference: tuple[Path, Path], tmp_path: Path) -> None:
-    """Guard against a comparison that cannot fail: one label nudged by one ulp must be caught."""
-    ref, _ = reference
-    copy = tmp_path / "copy"
-    shutil.copytree(ref, copy)
-    ds = Dataset.open(copy / "dataset")
-    record = ds.read(PRETRAIN + 1)
-    record.cost_to_go[3] = np.nextafter(record.cost_to_go[3], np.inf)
-    ds.record_path(record.index).unlink()
-    ds.write(record)
-    with pytest.raises(AssertionError, match="cost_to_go"):
-        _assert_identical_runs(ref, copy)
