@@ -78,7 +78,7 @@ def bench_task(name: str, n: int, seed: int, n_accuracy: int, n_consistency: int
         "solved_by": first_attempt,
         "failure_statuses": failures,
         "build_s": round(build_s, 2),
-        "config": {"solver": opt.config.solver, "fallback": opt.config.fallback_solver, "guesses": opt.config.guesses},
+        "plan": list(opt.config.plan or ()),
     }
     good = [r for r in results if r.success]
     if good:
@@ -112,7 +112,7 @@ def local_optima(opt: TrajectoryOptimizer, results: list[SolveResult]) -> dict[s
     for r in results:
         alt_values = []
         for g in others:
-            att = opt._attempt(opt.config.fallback_solver, g, r.x_init, r.tau)
+            att = opt._attempt("ipopt", g, r.x_init, r.tau)
             if att.sol.success:
                 alt_values.append(att.sol.objective)
         if alt_values:

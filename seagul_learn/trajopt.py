@@ -7,8 +7,8 @@ from the defect multipliers).
 
 Robustness: a deterministic sequence of attempts (solver and initial guess) is tried until one succeeds, so the label
 of a start depends only on ``(x_init, tau)`` and the configuration, never on what was solved before (batch and
-parallel solving stay reproducible). The default sequence is the straight line from ``x_init`` to the goal, then
-"the goal everywhere", then a time-reversed line; see :class:`TrajOptConfig`.
+parallel solving stay reproducible). The default plans (:data:`TASK_DEFAULTS`) start with the fastest solver from
+a straight-line guess and end with IPOPT from "the goal everywhere"; see :class:`TrajOptConfig` and docs/trajopt.md.
 
 ``grad_tau`` of a fixed-step task (the acrobot, ``h = tau / m``) is the sensitivity of ``V`` to stretching every
 step; it is not the derivative of a free-final-time value and the acrobot's ``T0`` is a single value anyway.
@@ -30,7 +30,10 @@ from seagul_envs.tasks import make_task
 from seagul_envs.tasks.base import Task, rk4_map
 from seagul_learn.results import SolveResult
 
-SolverName = Literal["ipopt", "fatrop"]
+SolverName = Literal["ipopt", "ipopt_fast", "fatrop"]
+SOLVER_NAMES: tuple[str, ...] = ("ipopt", "ipopt_fast", "fatrop")
+#: Iteration cap of the ``ipopt_fast`` variant: it either converges quickly or hands over to the careful IPOPT.
+FAST_IPOPT_MAX_ITER = 150
 GuessName = Literal["line", "goal", "hold", "kinematic"]
 
 GUESS_NAMES: tuple[str, ...] = ("line", "goal", "hold", "kinematic")
@@ -39,19 +42,26 @@ GUESS_NAMES: tuple[str, ...] = ("line", "goal", "hold", "kinematic")
 KINEMATIC_PAIRS: dict[str, tuple[tuple[int, int], ...]] = {"glider": ((0, 4), (1, 5))}
 
 #: Per-task defaults of the fields left at None in :class:`TrajOptConfig` (measured choices, docs/trajopt.md).
-#: Acrobot: over 150 uniform starts every label above 35 was a poor local optimum (43-76, while a solve from
-#: "the goal everywhere" found 20-25) and every good label was below 30, so values above 35 trigger a re-solve.
+#: ``plan``: the attempts ``"solver:guess"`` tried in order until one succeeds (measured, docs/trajopt.md):
+#: fatrop is the fastest per iteration but fails ~10% of acrobot starts (no restoration on its line-search failures);
+#: ``ipopt_fast`` (IPOPT accepting every trial step) converges in ~15 (acrobot) / ~40 (glider) iterations where the
+#: filter line search needs ~15 / ~140; the careful IPOPT with two guesses comes last.
+#: Acrobot multi-start: over 300 uniform starts 6 labels (2%) were poor local optima (34-129, while IPOPT from "the
+#: goal everywhere" found 16-35) and only one good label exceeded 30 (30.007; the 95th percentile is 24), so values
+#: above 30 trigger a re-solve; it recovered all 6.
 TASK_DEFAULTS: dict[str, dict[str, Any]] = {
     "acrobot": {
-        "solver": "fatrop",
-        "guesses": ("line", "goal"),
+        "plan": ("fatrop:line", "ipopt_fast:line", "ipopt:line", "ipopt:goal"),
         "multi_start": "on_suspect",
         "multi_start_guesses": ("line", "goal"),
-        "suspect_value": 35.0,
+        "suspect_value": 30.0,
     },
-    "glider": {"solver": "fatrop", "guesses": ("kinematic", "line", "goal"), "multi_start": "never"},
+    "glider": {
+        "plan": ("ipopt_fast:kinematic", "fatrop:kinematic", "ipopt:kinematic", "ipopt:line", "ipopt:goal"),
+        "multi_start": "never",
+    },
 }
-_GENERIC_DEFAULTS: dict[str, Any] = {"solver": "ipopt", "guesses": ("line", "goal"), "multi_start": "never"}
+_GENERIC_DEFAULTS: dict[str, Any] = {"multi_start": "never"}
 _FALLBACK_DEFAULTS: dict[str, Any] = {"multi_start_guesses": ("goal",), "suspect_value": float("inf")}
 
 
@@ -59,14 +69,19 @@ _FALLBACK_DEFAULTS: dict[str, Any] = {"multi_start_guesses": ("goal",), "suspect
 class TrajOptConfig:
     """Options of :class:`TrajectoryOptimizer` (hashable, so workers can cache one optimizer per configuration)."""
 
+    plan: tuple[str, ...] | None = None
+    """Attempts ``"solver:guess"`` tried in order until one succeeds. None: derived from ``solver``,
+    ``fallback_solver`` and ``guesses`` if any of them is set, else the task's default (:data:`TASK_DEFAULTS`).
+    Solvers: ``"ipopt"``, ``"fatrop"``, ``"ipopt_fast"`` (IPOPT with ``accept_every_trial_step``, capped at
+    :data:`FAST_IPOPT_MAX_ITER` iterations)."""
     solver: SolverName | None = None
-    """Solver of the first attempt (None: the task's default in :data:`TASK_DEFAULTS`)."""
+    """Solver of the first attempt when the plan is derived (default ``"ipopt"``)."""
     fallback_solver: SolverName = "ipopt"
-    """Solver of the fallback attempts (the first attempt's solver when equal)."""
+    """Solver of the fallback attempts of a derived plan and of the multi-start."""
     guesses: tuple[str, ...] | None = None
-    """Initial guesses of the first attempt and the fallbacks, tried in order until one succeeds (None: the task's
-    default): ``"line"`` straight line from ``x_init`` to the goal, ``"goal"`` the goal at every knot, ``"hold"``
-    ``x_init`` at every knot, ``"kinematic"`` the line with each (position, velocity) pair of
+    """Initial guesses of a derived plan: the first with ``solver``, all with ``fallback_solver`` (default
+    ``("line", "goal")``). Names: ``"line"`` straight line from ``x_init`` to the goal, ``"goal"`` the goal at
+    every knot, ``"hold"`` ``x_init`` at every knot, ``"kinematic"`` the line with each (position, velocity) pair of
     :data:`KINEMATIC_PAIRS` made consistent (velocity linear from the start's so that the position reaches the
     goal's at ``tau``). Inputs start at zero, steps at ``tau / m``."""
     multi_start: Literal["never", "on_suspect", "always"] | None = None
@@ -104,8 +119,9 @@ class TrajOptConfig:
             raise ValueError(f"unknown TrajectoryOptimizer options {sorted(unknown)}")
         if isinstance(changes.get("solver_options"), dict):
             changes["solver_options"] = tuple(sorted(changes["solver_options"].items()))
-        if isinstance(changes.get("guesses"), list):
-            changes["guesses"] = tuple(changes["guesses"])
+        for key in ("guesses", "plan"):
+            if isinstance(changes.get(key), list):
+                changes[key] = tuple(changes[key])
         if isinstance(changes.get("multi_start_guesses"), list):
             changes["multi_start_guesses"] = tuple(changes["multi_start_guesses"])
         return dataclasses.replace(self, **changes)
@@ -113,19 +129,35 @@ class TrajOptConfig:
     def resolved(self, task_name: str) -> TrajOptConfig:
         """A copy with the None fields filled from the task's defaults."""
         defaults = {**_FALLBACK_DEFAULTS, **TASK_DEFAULTS.get(task_name, _GENERIC_DEFAULTS)}
+        if self.solver is not None or self.guesses is not None:
+            defaults.pop("plan", None)
         changes = {k: v for k, v in defaults.items() if getattr(self, k) is None}
-        return dataclasses.replace(self, **changes) if changes else self
+        cfg = dataclasses.replace(self, **changes) if changes else self
+        if cfg.plan is None:
+            solver = cfg.solver or "ipopt"
+            guesses = cfg.guesses or ("line", "goal")
+            plan = [f"{solver}:{guesses[0]}"] + [f"{cfg.fallback_solver}:{g}" for g in guesses[1:]]
+            if solver != cfg.fallback_solver:
+                # The fast solver's failure is often the solver's, not the guess's: retry its first guess too.
+                plan.insert(1, f"{cfg.fallback_solver}:{guesses[0]}")
+            cfg = dataclasses.replace(cfg, plan=tuple(plan))
+        return cfg
 
     def validate(self) -> None:
         """Raise ValueError on unknown solver or guess names and bad numbers."""
-        for s in (self.solver, self.fallback_solver):
+        steps = [p.split(":", 1) for p in (self.plan or ())]
+        if any(len(st) != 2 for st in steps):
+            raise ValueError(f"plan entries must read 'solver:guess', got {self.plan}")
+        if self.plan is not None and not self.plan:
+            raise ValueError("plan must name at least one attempt")
+        for s in (self.solver, self.fallback_solver, *(st[0] for st in steps)):
             if s is None:
                 continue
-            if s not in ("ipopt", "fatrop"):
-                raise ValueError(f"unknown solver {s!r}; use 'ipopt' or 'fatrop'")
+            if s not in SOLVER_NAMES:
+                raise ValueError(f"unknown solver {s!r}; use 'ipopt' or 'fatrop' (or 'ipopt_fast')")
         if self.guesses is not None and not self.guesses:
             raise ValueError("guesses must name at least one initial guess")
-        for gname in (*(self.guesses or ()), *(self.multi_start_guesses or ())):
+        for gname in (*(self.guesses or ()), *(self.multi_start_guesses or ()), *(st[1] for st in steps)):
             if gname not in GUESS_NAMES:
                 raise ValueError(f"unknown guess {gname!r}; use one of {GUESS_NAMES}")
         if self.multi_start not in (None, "never", "on_suspect", "always"):
@@ -169,20 +201,25 @@ class TrajectoryOptimizer:
         self._transcriptions: dict[str, Transcription] = {}
         self.counters = _Counters()
         # Build the first solver now (fail early on bad options); fallbacks are built on first use.
-        self._transcription(cfg.solver)
+        self._transcription(self._plan()[0][0])
 
     # ---------------------------------------------------------------- solvers
     def _solver_options(self, solver: str) -> dict[str, Any]:
         cfg = self.config
-        if solver == "ipopt":
+        base = "fatrop" if solver == "fatrop" else "ipopt"
+        if base == "ipopt":
             opts: dict[str, Any] = {
                 "ipopt.tol": cfg.tol,
                 "ipopt.acceptable_tol": cfg.acceptable_tol,
                 "ipopt.max_iter": cfg.max_iter,
             }
+            if solver == "ipopt_fast":
+                opts["ipopt.accept_every_trial_step"] = "yes"
+                opts["ipopt.max_iter"] = min(cfg.max_iter, FAST_IPOPT_MAX_ITER)
         else:
             opts = {"fatrop.tol": cfg.tol, "fatrop.max_iter": cfg.max_iter}
-        opts.update(dict(cfg.solver_options))
+        # Plugin options go to their own solver only ("ipopt.x" never reaches fatrop); others go to every solver.
+        opts.update({k: v for k, v in cfg.solver_options if "." not in k or k.split(".", 1)[0] == base})
         return opts
 
     def _transcription(self, solver: str) -> Transcription:
@@ -191,7 +228,7 @@ class TrajectoryOptimizer:
                 self.task,
                 self.horizon,
                 substeps=self.config.substeps,
-                solver=solver,  # type: ignore[arg-type]
+                solver="fatrop" if solver == "fatrop" else "ipopt",
                 solver_options=self._solver_options(solver),
                 codegen=self.config.codegen,
             )
@@ -200,7 +237,7 @@ class TrajectoryOptimizer:
     # ---------------------------------------------------------------- guesses
     def guess(self, name: str, x_init: np.ndarray, tau: float, solver: str | None = None) -> np.ndarray:
         """The primal initial guess called ``name`` (see :attr:`TrajOptConfig.guesses`); depends only on inputs."""
-        tr = self._transcription(solver or self.config.solver)
+        tr = self._transcription(solver or self._plan()[0][0])
         if name == "line":
             return tr.line_guess(x_init, tau)
         if name == "goal":
@@ -225,13 +262,7 @@ class TrajectoryOptimizer:
         return tr.pack_guess(states, np.zeros((m, self.task.nu)), steps)
 
     def _plan(self) -> list[tuple[str, str]]:
-        cfg = self.config
-        plan = [(cfg.solver, cfg.guesses[0])]
-        plan += [(cfg.fallback_solver, g) for g in cfg.guesses[1:]]
-        if cfg.solver != cfg.fallback_solver:
-            # The fast solver's failure is often the solver's, not the guess's: retry its first guess too.
-            plan.insert(1, (cfg.fallback_solver, cfg.guesses[0]))
-        return plan
+        return [tuple(p.split(":", 1)) for p in self.config.plan or ()]  # type: ignore[misc]
 
     # ------------------------------------------------------------------ solve
     def check_inputs(self, x_init: Any, tau: Any = None) -> tuple[np.ndarray, float]:
@@ -322,6 +353,8 @@ class TrajectoryOptimizer:
         time_to_go = tau - elapsed
         time_to_go[0], time_to_go[-1] = tau, 0.0  # exact ends: sum(h) = tau holds to the solver's tolerance
         time_to_go = np.maximum(time_to_go, 0.0)
+        states = np.array(sol.states, dtype=float)
+        states[0] = x  # x_0 = x_init is a constraint; IPOPT leaves ~1e-33 residues, store the start exactly
         grad_x = np.asarray(sol.param_sensitivity[:nx], dtype=float)
         grad_tau = float(sol.param_sensitivity[nx])
         knot_grads = np.vstack([grad_x[None, :], np.asarray(sol.defect_multipliers, dtype=float)])
@@ -333,7 +366,7 @@ class TrajectoryOptimizer:
             value=float(cost_to_go[0]) if success else float("nan"),
             grad_x=grad_x,
             grad_tau=grad_tau,
-            states=np.asarray(sol.states, dtype=float),
+            states=states,
             controls=np.asarray(sol.controls, dtype=float),
             steps=steps,
             time_to_go=time_to_go,
