@@ -35,6 +35,10 @@ never negative) in each of them.
   own box without a rebuild.
 * ``"none"``: ``Vhat`` alone (the paper's Eq. 3 as written).
 
+For a zero-cost equilibrium goal (the acrobot) ``anchor_goal`` (default on there) first replaces ``Vhat`` by
+``Vhat - Vhat(x*, tau) - dVhat/dx(x*, tau) (x - x*)``: the true value and its gradient vanish at the goal, and a
+network's small first-order error there otherwise shifts the closed loop's resting point off the goal.
+
 **Speed.** The default solver is CasADi's ``fatrop`` (the transcription orders variables and constraints stage by
 stage); with ``jit=True`` (default) the NLP functions are compiled to C once and the object file is cached on disk
 (``$SEAGUL_CACHE_DIR`` or ``~/.cache/seagul/casadi``, keyed by a hash of the generated source and flags), so a new
@@ -508,6 +512,8 @@ class LimitedLookaheadMPC(_MPCBase):
         trust_box: ``(low, high)`` state box for ``"box"`` (default: from the value function).
         trust_weight: weight ``w`` of the box penalty (value units per squared box width).
         clamp: use ``max(Vhat, 0)`` (smooth) as the learned cost.
+        anchor_goal: subtract the network's value and gradient at the goal (``Vhat - Vhat(x*) - dVhat(x*) (x - x*)``),
+            exact knowledge for a zero-cost equilibrium goal; default: on for such tasks (acrobot), off otherwise.
         final_box: impose the task's terminal box in the final-phase problems.
         steps: ``"fixed"`` (default; every step is ``dt``, fatrop-compatible) or ``"free"`` (``h_k`` in the task's
             step bounds with ``sum(h) <= tau_now``, paper Eq. 3's general form; the summed-time row couples all
@@ -540,6 +546,7 @@ class LimitedLookaheadMPC(_MPCBase):
         trust_box: tuple[np.ndarray, np.ndarray] | None = None,
         trust_weight: float = 100.0,
         clamp: bool = True,
+        anchor_goal: bool | None = None,
         final_box: bool = True,
         steps: str = "fixed",
         end_phase: str | None = None,
@@ -563,6 +570,14 @@ class LimitedLookaheadMPC(_MPCBase):
         self.trust_region: TrustRegion = trust_region
         self.trust_weight = float(trust_weight)
         self.clamp = bool(clamp)
+        drift = np.asarray(task.dynamics(task.goal, np.zeros(task.nu))).ravel()
+        equilibrium = (
+            bool(np.allclose(drift, 0.0, atol=1e-9))
+            and abs(task.stage_cost_value(task.goal, np.zeros(task.nu))) < 1e-12
+        )
+        self.anchor_goal = equilibrium if anchor_goal is None else bool(anchor_goal)
+        if self.anchor_goal and not equilibrium:
+            raise ValueError(f"{self.name}: anchor_goal needs a goal that is a zero-cost equilibrium of the task")
         self._configure_solver(solver, steps == "free", jit, jit_cache_dir, jit_flags, max_iter, tol, solver_options)
 
         self._vf_fn: ca.Function | None = None
@@ -680,6 +695,14 @@ class LimitedLookaheadMPC(_MPCBase):
         if self._vf_fn is None:
             return ca.Function("mpc_terminal", [x, tau, theta], [lf])
         v = self._vf_fn(x, tau, theta[:n_vf])
+        if self.anchor_goal:
+            # V(x*, tau) = 0 and dV/dx(x*, tau) = 0 at an equilibrium goal: remove the network's first-order error
+            # there, which otherwise shifts the closed loop's resting point away from the goal.
+            xs = ca.SX.sym("xs", nx)
+            vs = self._vf_fn(xs, tau, theta[:n_vf])
+            taylor = ca.Function("vf_at_goal", [xs, tau, theta], [vs, ca.jacobian(vs, xs)])
+            v_goal, g_goal = taylor(ca.DM(self.task.goal), tau, theta)
+            v = v - v_goal - ca.mtimes(g_goal, x - self.task.goal)
         if self.clamp:
             v = 0.5 * (v + ca.sqrt(v**2 + 1e-6))  # smooth max(V, 0): a cost-to-go is never negative
         lo, hi = theta[n_vf : n_vf + nx], theta[n_vf + nx : n_vf + 2 * nx]

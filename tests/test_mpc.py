@@ -98,14 +98,13 @@ def test_mpc_with_full_horizon_cost_to_go_reproduces_the_full_horizon_first_acti
     np.testing.assert_allclose(tail.param_sensitivity[: task.nx], grad_n, rtol=1e-4, atol=1e-6)
 
     value = QuadraticValue(task.extras["Qf"], x_n, grad_n, v_n)
-    mpc = LimitedLookaheadMPC(task, value, n, trust_region="none", clamp=False, tol=1e-10, **FAST)
+    exact = {"trust_region": "none", "clamp": False, "anchor_goal": False, "tol": 1e-10, **FAST}
+    mpc = LimitedLookaheadMPC(task, value, n, **exact)
     u, info = mpc.act(x0, task.tau_nominal)
     assert info.success
     np.testing.assert_allclose(u, sol.controls[0], atol=1e-4)
     # Without the gradient term the short MPC acts differently: the check has teeth.
-    plain = LimitedLookaheadMPC(
-        task, QuadraticValue(task.extras["Qf"], x_n, None, v_n), n, trust_region="none", clamp=False, tol=1e-10, **FAST
-    )
+    plain = LimitedLookaheadMPC(task, QuadraticValue(task.extras["Qf"], x_n, None, v_n), n, **exact)
     assert np.max(np.abs(plain.act(x0, task.tau_nominal)[0] - sol.controls[0])) > 1e-2
 
 
@@ -207,9 +206,11 @@ def test_terminal_cost_equals_the_value_network_it_wraps():
     with torch.no_grad():
         net.layers[-1].bias.fill_(3.0)  # keep V > 0 so the clamp is inactive on most points
     box = (task.goal - 1.0, task.goal + 1.0)
-    mpc = LimitedLookaheadMPC(task, net, 5, trust_region="box", trust_box=box, trust_weight=7.0, **FAST)
-    prior = LimitedLookaheadMPC(task, net, 5, trust_region="lqr", clamp=False, **FAST)
-    plain = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, **FAST)
+    mpc = LimitedLookaheadMPC(
+        task, net, 5, trust_region="box", trust_box=box, trust_weight=7.0, anchor_goal=False, **FAST
+    )
+    prior = LimitedLookaheadMPC(task, net, 5, trust_region="lqr", clamp=False, anchor_goal=False, **FAST)
+    plain = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, anchor_goal=False, **FAST)
     for x, tau in zip(task.sample_x0(rng, 5), rng.uniform(0.5, 4.5, 5), strict=True):
         expected = float(net.predict(x[None], tau)[0])
         assert plain.terminal_cost_value(x, tau) == pytest.approx(expected, rel=1e-10, abs=1e-10)
@@ -294,3 +295,28 @@ def test_glider_final_phase_shrinks_to_the_episode_end():
     assert sorted(mpc._final_fixed) == [1, 2, 3, 4]
     x = info["state"]
     assert abs(x[0]) < 0.05 and abs(x[1]) < 0.05, x
+
+
+def test_goal_anchoring_removes_the_networks_value_and_slope_at_the_goal():
+    pytest.importorskip("torch")
+    from seagul_learn.value_network import ValueNetwork
+
+    task = make_task("acrobot")
+    net = ValueNetwork(4, (32,), task_name="acrobot", seed=3)
+    anchored = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, **FAST)
+    assert anchored.anchor_goal  # default for a zero-cost equilibrium goal
+    raw = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, anchor_goal=False, **FAST)
+    g = task.goal
+    assert abs(raw.terminal_cost_value(g, 2.0)) > 1e-3  # the random network is not zero there
+    assert anchored.terminal_cost_value(g, 2.0) == pytest.approx(0.0, abs=1e-12)
+    eps = 1e-6
+    for e in np.eye(4):
+        slope = (anchored.terminal_cost_value(g + eps * e, 2.0) - anchored.terminal_cost_value(g - eps * e, 2.0)) / 2
+        assert abs(slope / eps) < 1e-6
+    # Away from the goal the anchored cost is the network minus its first-order expansion at the goal.
+    x = g + np.array([0.2, -0.1, 0.3, 0.1])
+    v, grad, _ = net.value_and_grad(g, 2.0)
+    expected = float(net.predict(x[None], 2.0)[0]) - v - grad @ (x - g)
+    assert anchored.terminal_cost_value(x, 2.0) == pytest.approx(expected, rel=1e-9, abs=1e-9)
+    with pytest.raises(ValueError, match="zero-cost equilibrium"):
+        LimitedLookaheadMPC(make_task("glider"), None, 10, anchor_goal=True, **FAST)
