@@ -9,6 +9,7 @@ record atomically as soon as its chunk finishes, and counts solves and failures.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import json
 import os
@@ -53,8 +54,36 @@ def trajopt_batch_solver(
 
 
 def solver_key(solver_options: dict[str, Any] | None) -> str:
-    """A stable text key of the real solver's settings (caches of solved sets are keyed by it)."""
-    return "trajopt:" + json.dumps(solver_options or {}, sort_keys=True, default=str)
+    """A stable text key of the real solver: its settings and a fingerprint of its code (caches are keyed by it).
+
+    The fingerprint makes a cache (validation sets, cached solves) or a resumed run refuse results of an older
+    optimizer after its code changed, instead of silently mixing the two.
+    """
+    return f"trajopt@{solver_fingerprint()}:" + json.dumps(solver_options or {}, sort_keys=True, default=str)
+
+
+@functools.cache
+def solver_fingerprint() -> str:
+    """Short hash of the source of the modules that define a solve (optimizer, transcription, tasks).
+
+    Computed once per process, from the files of the modules this process imported.
+    """
+    import seagul_control.transcription
+    import seagul_envs.tasks.acrobot
+    import seagul_envs.tasks.base
+    import seagul_envs.tasks.glider
+    import seagul_learn.trajopt
+
+    digest = hashlib.sha256()
+    for module in (
+        seagul_learn.trajopt,
+        seagul_control.transcription,
+        seagul_envs.tasks.base,
+        seagul_envs.tasks.acrobot,
+        seagul_envs.tasks.glider,
+    ):
+        digest.update(Path(str(module.__file__)).read_bytes())
+    return digest.hexdigest()[:12]
 
 
 class SolveRunner:
