@@ -234,6 +234,14 @@ class TrajectoryOptimizer:
             )
         return self._transcriptions[solver]
 
+    def prepare(self) -> TrajectoryOptimizer:
+        """Build every solver the plan and the multi-start may use (long-lived workers: no build inside a solve)."""
+        for solver, _ in self._plan():
+            self._transcription(solver)
+        if self.config.multi_start != "never":
+            self._transcription(self.config.fallback_solver)
+        return self
+
     # ---------------------------------------------------------------- guesses
     def guess(self, name: str, x_init: np.ndarray, tau: float, solver: str | None = None) -> np.ndarray:
         """The primal initial guess called ``name`` (see :attr:`TrajOptConfig.guesses`); depends only on inputs."""
