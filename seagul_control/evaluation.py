@@ -92,6 +92,8 @@ class EpisodeResult:
     steps: int
     solve_times: list[float] = field(default_factory=list)
     """Solver wall time per step (s), MPC policies only."""
+    iterations: list[int] = field(default_factory=list)
+    """Solver iterations per step, MPC policies only."""
     fallbacks: int = 0
     """Steps whose action did not come from a converged solve."""
     states: list[list[float]] = field(default_factory=list)
@@ -247,6 +249,7 @@ def run_episode(
         terminated=bool(terminated),
         steps=steps,
         solve_times=[float(s.solve_time) for s in episode],
+        iterations=[int(s.iterations) for s in episode],
         fallbacks=sum(1 for s in episode if s.source != "solver"),
         states=states,
     )
@@ -327,6 +330,7 @@ def summarize(task_name: str, results: Sequence[EpisodeResult]) -> list[dict[str
     for name in dict.fromkeys(r.policy for r in results):
         rs = [r for r in results if r.policy == name]
         times = np.concatenate([np.asarray(r.solve_times) for r in rs]) if rs else np.zeros(0)
+        iters = np.concatenate([np.asarray(r.iterations, dtype=float) for r in rs]) if rs else np.zeros(0)
         row: dict[str, Any] = {
             "policy": name,
             "episodes": len(rs),
@@ -339,6 +343,7 @@ def summarize(task_name: str, results: Sequence[EpisodeResult]) -> list[dict[str
             "median_step_ms": float(np.median(times) * 1e3) if times.size else math.nan,
             "p95_step_ms": float(np.percentile(times, 95) * 1e3) if times.size else math.nan,
             "max_step_ms": float(np.max(times) * 1e3) if times.size else math.nan,
+            "mean_iterations": float(np.mean(iters)) if iters.size else math.nan,
             "fallback_steps": int(sum(r.fallbacks for r in rs)),
             "steps": int(sum(r.steps for r in rs)),
         }
