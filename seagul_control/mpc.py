@@ -449,7 +449,8 @@ class _MPCBase:
         if jit_options is not None:
             try:
                 # CasADi writes the generated C file into the working directory: keep it out of the user's tree.
-                with contextlib.chdir(_jit_directory()):
+                # A fresh directory per build: CasADi deletes its files when the solver is unloaded.
+                with contextlib.chdir(tempfile.mkdtemp(dir=_jit_directory())):
                     trans = Transcription(
                         self.task, solver=self.solver, solver_options={**options, **jit_options}, **kwargs
                     )
