@@ -101,7 +101,7 @@ def test_same_seed_same_dataset_and_weights_different_seed_differs(tmp_path):
     assert not np.array_equal(_weights(a.network), _weights(c.network))
 
 
-@pytest.mark.parametrize("crash_after", [2, 4, 7, 13])  # inside pretraining, right after it, mid-round, last round
+@pytest.mark.parametrize("crash_after", [2, 7, 13])  # inside pretraining, mid-round, last round
 @pytest.mark.parametrize("sampler", ["uniform", "adversarial"])
 def test_resume_after_interruption_matches_uninterrupted_run(tmp_path, crash_after, sampler):
     task = make_task("acrobot")
