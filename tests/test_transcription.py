@@ -79,15 +79,15 @@ def test_pack_guess_round_trip() -> None:
 
 def test_codegen_library_is_cached(tmp_path) -> None:
     task = make_task("acrobot")
-    a = Transcription(task, 3, free_time=False, step=0.1, codegen=True, codegen_dir=tmp_path)
+    a = Transcription(task, 1, free_time=False, step=0.1, codegen=True, codegen_dir=tmp_path)
     lib = a.codegen_library
     assert lib is not None and lib.parent == tmp_path and lib.is_file()
     mtime = lib.stat().st_mtime_ns
-    b = Transcription(task, 3, free_time=False, step=0.1, codegen=True, codegen_dir=tmp_path)
+    b = Transcription(task, 1, free_time=False, step=0.1, codegen=True, codegen_dir=tmp_path)
     assert b.codegen_library == lib and lib.stat().st_mtime_ns == mtime  # loaded, not recompiled
-    c = Transcription(task, 4, free_time=False, step=0.1, codegen=True, codegen_dir=tmp_path)
+    c = Transcription(task, 2, free_time=False, step=0.1, codegen=True, codegen_dir=tmp_path)
     assert c.codegen_library != lib  # another problem, another key
-    assert a.solve(ACROBOT_X, 0.3).objective == pytest.approx(b.solve(ACROBOT_X, 0.3).objective, rel=1e-12)
+    assert a.solve(ACROBOT_X, 0.1).objective == pytest.approx(b.solve(ACROBOT_X, 0.1).objective, rel=1e-12)
 
 
 def test_no_compiler_falls_back_to_interpreted(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
