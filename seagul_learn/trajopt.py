@@ -34,6 +34,8 @@ SolverName = Literal["ipopt", "ipopt_fast", "fatrop"]
 SOLVER_NAMES: tuple[str, ...] = ("ipopt", "ipopt_fast", "fatrop")
 #: Iteration cap of the ``ipopt_fast`` variant: it either converges quickly or hands over to the careful IPOPT.
 FAST_IPOPT_MAX_ITER = 150
+#: IPOPT options of the ``ipopt_fast`` variant (over the careful IPOPT's).
+FAST_IPOPT_OPTIONS: dict[str, Any] = {"ipopt.accept_every_trial_step": "yes"}
 GuessName = Literal["line", "goal", "hold", "kinematic"]
 
 GUESS_NAMES: tuple[str, ...] = ("line", "goal", "hold", "kinematic")
@@ -214,7 +216,7 @@ class TrajectoryOptimizer:
                 "ipopt.max_iter": cfg.max_iter,
             }
             if solver == "ipopt_fast":
-                opts["ipopt.accept_every_trial_step"] = "yes"
+                opts.update(FAST_IPOPT_OPTIONS)
                 opts["ipopt.max_iter"] = min(cfg.max_iter, FAST_IPOPT_MAX_ITER)
         else:
             opts = {"fatrop.tol": cfg.tol, "fatrop.max_iter": cfg.max_iter}
