@@ -7,6 +7,10 @@ from typing import Any
 
 # Public names, imported lazily so that `import seagul_learn` stays cheap (no torch or solver stack until used).
 _LAZY: dict[str, str] = {
+    "TrajectoryOptimizer": "seagul_learn.trajopt",
+    "TrajOptConfig": "seagul_learn.trajopt",
+    "SolveResult": "seagul_learn.results",
+    "solve_many": "seagul_learn.parallel",
     "ValueNetwork": "seagul_learn.value_network",
     "Dataset": "seagul_learn.dataset",
     "SolveRecord": "seagul_learn.dataset",
