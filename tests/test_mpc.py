@@ -320,3 +320,20 @@ def test_goal_anchoring_removes_the_networks_value_and_slope_at_the_goal():
     assert anchored.terminal_cost_value(x, 2.0) == pytest.approx(expected, rel=1e-9, abs=1e-9)
     with pytest.raises(ValueError, match="zero-cost equilibrium"):
         LimitedLookaheadMPC(make_task("glider"), None, 10, anchor_goal=True, **FAST)
+
+
+def test_jit_object_cache_is_keyed_by_the_generated_source(tmp_path):
+    from seagul_control.mpc import find_c_compiler, jit_solver_options
+
+    if find_c_compiler() is None:
+        pytest.skip("no C compiler")
+    x, p = ca.SX.sym("x", 2), ca.SX.sym("p")
+    nlp = {"x": x, "p": p, "f": (x[0] - p) ** 2 + (x[1] - 2 * p) ** 2}
+    objects = []
+    for _ in range(2):
+        options = {**jit_solver_options(tmp_path), "ipopt.print_level": 0, "print_time": False}
+        solver = ca.nlpsol("jit_probe", "ipopt", nlp, options)
+        np.testing.assert_allclose(np.asarray(solver(x0=[0, 0], p=1.5)["x"]).ravel(), [1.5, 3.0], atol=1e-6)
+        objects.append(sorted(f.name for f in tmp_path.glob("*.o")))
+    assert len(objects[0]) == 1 and objects[1] == objects[0]  # the second build reused the cached object
+    assert (tmp_path / "seagul_cc.py").is_file()
