@@ -53,6 +53,12 @@ EXTRA_VARIANTS: dict[str, dict[str, Any]] = {
     "adversarial-short": {"sampler": "adversarial", "adv_max_steps": 2, "adv_step_fraction": 0.2},
     "adversarial-stop": {"sampler": "adversarial", "adv_projection": "reflect", "adv_stop_on_decrease": True},
     "adversarial-notau": {"sampler": "adversarial", "adv_ascend_tau": False},
+    "adversarial-stopmix": {
+        "sampler": "adversarial",
+        "adv_projection": "reflect",
+        "adv_stop_on_decrease": True,
+        "adv_uniform_fraction": 0.3,
+    },
 }
 
 
