@@ -148,6 +148,30 @@ def solve_many(
     return _solve_local(task_name, frozen, arr, tau_arr, workers, progress)
 
 
+_POOL: dict[str, Any] = {}
+
+
+def _local_pool(workers: int) -> Any:
+    """This module's own loky pool of ``workers`` processes, kept alive between calls (idle timeout 300 s).
+
+    loky: spawned (not forked) workers that need no ``if __name__ == "__main__"`` guard in the caller's script, and
+    each worker's cached optimizer is reused by the next batch. A private executor, not loky's process-wide reusable
+    one: joblib's ``Parallel`` (used by callers, e.g. the closed-loop evaluation) takes over that singleton and fails
+    on one it did not create.
+    """
+    from joblib.externals.loky import ProcessPoolExecutor
+
+    pool = _POOL.get("pool")
+    if pool is not None and (_POOL.get("workers") != workers or pool._flags.broken or pool._flags.shutdown):
+        pool.shutdown(wait=False)
+        pool = None
+    if pool is None:
+        env = {v: "1" for v in _THREAD_VARS}
+        pool = ProcessPoolExecutor(max_workers=workers, timeout=300, initializer=_worker_init, env=env)
+        _POOL.update(pool=pool, workers=workers)
+    return pool
+
+
 def _solve_local(
     task_name: str,
     frozen: tuple[tuple[str, Any], ...],
@@ -156,16 +180,10 @@ def _solve_local(
     workers: int,
     progress: bool,
 ) -> list[SolveResult]:
-    # loky: spawned (not forked) workers that need no `if __name__ == "__main__"` guard in the caller's script, kept
-    # alive between calls (idle timeout) so each worker's cached optimizer is reused by the next batch.
-    from joblib.externals.loky import get_reusable_executor
-
     n = starts.shape[0]
     chunks = _chunks(n, workers, None)
     results: list[SolveResult | None] = [None] * n
-    pool = get_reusable_executor(
-        max_workers=workers, timeout=300, initializer=_worker_init, env={v: "1" for v in _THREAD_VARS}
-    )
+    pool = _local_pool(workers)
     with _progress(n, progress, f"{task_name} solves x{workers}") as bar:
         pending: dict[Future[list[SolveResult]], np.ndarray] = {}
         queue = list(chunks)

@@ -99,3 +99,16 @@ def test_ray_missing_gives_a_clear_error(monkeypatch: pytest.MonkeyPatch) -> Non
     monkeypatch.setattr(builtins, "__import__", fake_import)
     with pytest.raises(ImportError, match=r"seagul\[ray\]"):
         solve_many("acrobot", np.tile(make_task("acrobot").goal, (1, 1)), backend="ray", progress=False)
+
+
+def test_local_pool_coexists_with_joblib_parallel() -> None:
+    """solve_many's process pool must not break (or be broken by) joblib.Parallel in the same process: the
+    experiment solves its validation set, then trains and evaluates through joblib."""
+    from joblib import Parallel, delayed
+
+    task = make_task("acrobot")
+    starts = task.sample_x0(np.random.default_rng(3), 4)
+    first = solve_many("acrobot", starts, workers=2, progress=False)
+    assert Parallel(n_jobs=2)(delayed(abs)(-i) for i in range(4)) == [0, 1, 2, 3]
+    again = solve_many("acrobot", starts, workers=2, progress=False)
+    assert [r.value for r in first] == [r.value for r in again]
