@@ -33,8 +33,8 @@ from typing import Any
 
 import numpy as np
 from joblib import Parallel, delayed
-from scipy.stats import wilcoxon
 
+from seagul_learn.comparison import paired_comparison, plot_curves_with_band
 from seagul_learn.solving import BatchSolver, CachedBatchSolver, solver_key
 from seagul_learn.training import TrainConfig, train, validation_dataset
 
@@ -120,11 +120,8 @@ def base_config(task: str, settings: Settings) -> TrainConfig:
 
 def paired(num: list[float], den: list[float]) -> tuple[float, float, float]:
     """(median ratio, win fraction num < den, Wilcoxon p on log values) over paired seeds."""
-    a, b = np.asarray(num, dtype=float), np.asarray(den, dtype=float)
-    ratio = a / b
-    diff = np.log(a) - np.log(b)
-    p = float(wilcoxon(diff).pvalue) if len(diff) >= 2 and np.any(diff != 0) else float("nan")
-    return float(np.median(ratio)), float(np.mean(a < b)), p
+    c = paired_comparison(num, den)
+    return c.ratio_median, c.win_fraction, c.p_value
 
 
 def summarise(task: str, settings: Settings, results: dict[str, list[dict[str, Any]]]) -> dict[str, Any]:
@@ -175,35 +172,8 @@ def summarise(task: str, settings: Settings, results: dict[str, list[dict[str, A
 
 def plot(task: str, results: dict[str, list[dict[str, Any]]], path: Path) -> None:
     """Median and 25-75 % band over seeds of both metrics vs solves, per variant."""
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
-    for ax, key in zip(axes, ("mse_initial", "mse_all_knots"), strict=True):
-        for name, rows in results.items():
-            # round-end points only (one per solves value)
-            series = []
-            for run in rows:
-                by_solves: dict[int, float] = {}
-                for m in run["metrics"]:
-                    by_solves[m["solves"]] = m[key]
-                series.append(by_solves)
-            xs = sorted(set.intersection(*(set(s) for s in series)))
-            values = np.array([[s[x] for x in xs] for s in series])
-            median = np.median(values, axis=0)
-            lo, hi = np.percentile(values, [25, 75], axis=0)
-            (line,) = ax.plot(xs, median, marker="o", ms=3, label=name)
-            ax.fill_between(xs, lo, hi, color=line.get_color(), alpha=0.15)
-        ax.set_yscale("log")
-        ax.set_xlabel("solves")
-        ax.set_ylabel(f"validation {key}")
-        ax.grid(True, which="both", alpha=0.3)
-    axes[0].legend(fontsize=8)
-    fig.suptitle(f"{task}: median and 25-75 % band over {len(next(iter(results.values())))} seeds")
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
+    seeds = len(next(iter(results.values())))
+    plot_curves_with_band(results, path, title=f"{task}: median and 25-75 % band over {seeds} seeds")
 
 
 def main(argv: list[str] | None = None) -> int:
