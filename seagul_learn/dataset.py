@@ -37,6 +37,7 @@ status (they count against budgets) but :func:`training_arrays` never turns them
 
 from __future__ import annotations
 
+import io
 import json
 import os
 import re
@@ -193,7 +194,7 @@ class Dataset:
             raise DatasetError(f"cannot create a dataset in {str(path)!r}: the directory exists and is not empty")
         (path / "records").mkdir(parents=True, exist_ok=True)
         info = {"format": FORMAT_TAG, "version": FORMAT_VERSION, "task": task_name, "meta": _jsonable(meta or {})}
-        _atomic_write_bytes(header, json.dumps(info, indent=2, sort_keys=True).encode())
+        atomic_write_bytes(header, json.dumps(info, indent=2, sort_keys=True).encode())
         return cls(path, task_name, info["meta"])
 
     def record_path(self, index: int) -> Path:
@@ -220,18 +221,9 @@ class Dataset:
             if exist_ok:
                 return
             raise DatasetError(f"record {record.index} already exists in {str(self.path)!r}")
-        self.records_dir.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=self.records_dir)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                np.savez(f, **record.to_arrays())
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
-        _fsync_dir(self.records_dir)
+        buffer = io.BytesIO()
+        np.savez(buffer, **record.to_arrays())
+        atomic_write_bytes(path, buffer.getvalue())
 
     def read(self, index: int) -> SolveRecord:
         """Load record ``index``; raises :class:`DatasetError` naming the file if it is missing or corrupt."""
@@ -307,7 +299,12 @@ def _jsonable(obj: Any) -> Any:
     return json.loads(json.dumps(obj, sort_keys=True, default=str))
 
 
-def _atomic_write_bytes(path: Path, data: bytes) -> None:
+def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
+    """Write ``data`` to ``path`` atomically: a ``.tmp-*`` file beside it, fsync, rename, fsync the directory.
+
+    A reader sees the old file or the complete new one, never a torn one, whenever the writer is killed.
+    """
+    path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=path.parent)
     try:
@@ -324,7 +321,7 @@ def _atomic_write_bytes(path: Path, data: bytes) -> None:
 
 def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
     """Write ``text`` to ``path`` atomically (temp file, fsync, rename)."""
-    _atomic_write_bytes(Path(path), text.encode())
+    atomic_write_bytes(Path(path), text.encode())
 
 
 def _fsync_dir(path: Path) -> None:

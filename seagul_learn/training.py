@@ -66,6 +66,7 @@ from seagul_learn.dataset import (
     Dataset,
     SolveRecord,
     TrainingArrays,
+    atomic_write_bytes,
     atomic_write_text,
     count_failures,
     training_arrays,
@@ -593,12 +594,7 @@ def _save_checkpoint(path: Path, trainer: _Trainer, rounds_done: int, pool_posit
     }
     buf = io.BytesIO()
     torch.save(payload, buf)
-    tmp = path.with_name(f".tmp-{path.name}.{os.getpid()}")
-    with open(tmp, "wb") as f:
-        f.write(buf.getvalue())
-        f.flush()
-        os.fsync(f.fileno())
-    os.replace(tmp, path)
+    atomic_write_bytes(path, buf.getvalue())
 
 
 def _load_checkpoint(path: Path) -> dict[str, Any]:

@@ -17,9 +17,9 @@ and builtins only, so it loads with ``weights_only=True``).
 
 from __future__ import annotations
 
+import io
 import itertools
 import os
-import tempfile
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
@@ -29,6 +29,8 @@ import casadi as ca
 import numpy as np
 import torch
 from torch import nn
+
+from seagul_learn.dataset import atomic_write_bytes
 
 FORMAT_TAG = "seagul-value-network"
 FORMAT_VERSION = 1
@@ -176,17 +178,9 @@ class ValueNetwork(nn.Module):
             "config": {"nx": self.config.nx, "hidden": list(self.config.hidden)},
             "state_dict": {k: v.detach().clone() for k, v in self.state_dict().items()},
         }
-        path.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{path.name}.", suffix=".tmp", dir=path.parent)
-        try:
-            with os.fdopen(fd, "wb") as f:
-                torch.save(payload, f)
-                f.flush()
-                os.fsync(f.fileno())
-            os.replace(tmp, path)
-        except BaseException:
-            Path(tmp).unlink(missing_ok=True)
-            raise
+        buffer = io.BytesIO()
+        torch.save(payload, buffer)
+        atomic_write_bytes(path, buffer.getvalue())
         return path
 
     @classmethod
