@@ -55,7 +55,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import shutil
 import sys
 import tempfile
 import time
@@ -68,7 +67,12 @@ import casadi as ca
 import numpy as np
 
 from seagul_control.lqr import LQRPolicy, episode_start_mask, output_actions, split_observation
-from seagul_control.transcription import Transcription, TranscriptionSolution
+from seagul_control.transcription import (
+    Transcription,
+    TranscriptionSolution,
+    codegen_cache_dir,
+    find_c_compiler,
+)
 from seagul_control.value_function import CasadiValueFunction
 from seagul_envs.tasks.base import Task
 
@@ -135,18 +139,8 @@ sys.exit(code)
 '''
 
 
-def default_cache_dir() -> Path:
-    """``$SEAGUL_CACHE_DIR`` or ``~/.cache/seagul/casadi``."""
-    env = os.environ.get("SEAGUL_CACHE_DIR")
-    return Path(env) if env else Path.home() / ".cache" / "seagul" / "casadi"
-
-
-def find_c_compiler() -> str | None:
-    """A C compiler on PATH (``$CC``, gcc, cc, clang) or None."""
-    for name in (os.environ.get("CC"), "gcc", "cc", "clang"):
-        if name and shutil.which(name):
-            return shutil.which(name)
-    return None
+# One cache directory and one compiler lookup for every compiled CasADi artefact (the trajectory optimizer's too).
+default_cache_dir = codegen_cache_dir
 
 
 def jit_solver_options(cache_dir: Path | None = None, flags: tuple[str, ...] = ("-O1",)) -> dict[str, Any] | None:
