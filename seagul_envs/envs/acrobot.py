@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from seagul_envs.envs.base import TaskSimulatorEnv
+from seagul_envs.envs.base import TaskSimulatorEnv, resolve_task
 from seagul_envs.rendering import acrobot_frame
-from seagul_envs.tasks import make_task
 from seagul_envs.tasks.base import Task
 
 
@@ -77,10 +76,9 @@ class AcrobotEnv(TaskSimulatorEnv):
         task: Task | None = None,
         max_substep: float | None = None,
     ) -> None:
-        task = make_task("acrobot") if task is None else task
-        if task.name != "acrobot":
-            raise ValueError(f"{type(self).__name__} needs a acrobot task, got {task.name!r}")
-        super().__init__(task, dt=dt, render_mode=render_mode, max_substep=max_substep)
+        super().__init__(
+            resolve_task(task, "acrobot", type(self).__name__), dt=dt, render_mode=render_mode, max_substep=max_substep
+        )
 
     def _render_frame(self) -> np.ndarray:
         p = self.task.params

@@ -63,6 +63,14 @@ class BufferedFunction:
         self._eval()
 
 
+def resolve_task(task: Task | None, name: str, env_name: str) -> Task:
+    """The registered task ``name``, or a custom :class:`Task` of the same system; anything else is an error."""
+    task = make_task(name) if task is None else task
+    if task.name != name:
+        raise ValueError(f"{env_name} needs a {name} task, got {task.name!r}")
+    return task
+
+
 def step_function(task: Task, dt: float, max_substep: float | None = None) -> ca.Function:
     """``(x, u) -> (x(t + dt), l(x, u))``: ``task.simulator(dt, max_substep)`` and the stage cost in one call."""
     x = ca.SX.sym("x", task.nx)

@@ -4,9 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from seagul_envs.envs.base import TaskSimulatorEnv
+from seagul_envs.envs.base import TaskSimulatorEnv, resolve_task
 from seagul_envs.rendering import glider_frame
-from seagul_envs.tasks import make_task
 from seagul_envs.tasks.base import Task
 
 
@@ -80,10 +79,9 @@ class GliderEnv(TaskSimulatorEnv):
         task: Task | None = None,
         max_substep: float | None = None,
     ) -> None:
-        task = make_task("glider") if task is None else task
-        if task.name != "glider":
-            raise ValueError(f"{type(self).__name__} needs a glider task, got {task.name!r}")
-        super().__init__(task, dt=dt, render_mode=render_mode, max_substep=max_substep)
+        super().__init__(
+            resolve_task(task, "glider", type(self).__name__), dt=dt, render_mode=render_mode, max_substep=max_substep
+        )
         self._trail: list[tuple[float, float]] = []
 
     def reset(self, *, seed: int | None = None, options: dict | None = None) -> tuple[np.ndarray, dict]:
