@@ -21,7 +21,7 @@ import json
 import os
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, replace
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -141,8 +141,6 @@ class ExperimentConfig:
     """Optional saved stable-baselines3 PPO model to evaluate next to the MPCs."""
     progress: bool = True
     """Show progress bars."""
-    settings: dict[str, Any] = field(default_factory=dict)
-    """The resolved preset (filled in by :func:`resolve`)."""
 
     def validate(self) -> None:
         """Raise a ValueError naming the first bad field."""
@@ -164,7 +162,6 @@ class ExperimentConfig:
         preset = PRESETS[self.task][self.preset]
         if self.seeds is not None:
             preset = replace(preset, seeds=self.seeds)
-        self.settings = asdict(preset)
         return preset
 
 
@@ -217,7 +214,7 @@ class Experiment:
 
     def _save_state(self) -> None:
         payload = {
-            "config": {**asdict(self.config), "settings": {}},
+            "config": asdict(self.config),
             "settings": asdict(self.preset),
             "timings": self.timings,
         }
