@@ -98,6 +98,9 @@ class EpisodeResult:
     """Steps whose action did not come from a converged solve."""
     states: list[list[float]] = field(default_factory=list)
     """The visited states (first to last) when recorded."""
+    queries: list[list[float]] = field(default_factory=list)
+    """The MPC's planned terminal states and their times to go, ``[*x_n, tau_n]`` per step whose terminal cost was
+    the learned value (the planner's queries of ``Vhat``), when recorded."""
 
 
 # ------------------------------------------------------------------------------------------------ starts
@@ -208,16 +211,44 @@ def default_horizon(task: Task) -> int:
 
 # ------------------------------------------------------------------------------------------------ episodes
 def run_episode(
-    task_name: str, spec: PolicySpec, x0: np.ndarray, index: int = 0, record: bool = False
+    task_name: str,
+    spec: PolicySpec,
+    x0: np.ndarray,
+    index: int = 0,
+    record: bool = False,
+    record_queries: bool = False,
 ) -> EpisodeResult:
-    """One episode from ``x0`` at the nominal time to go."""
+    """One episode of the policy ``spec`` describes from ``x0`` at the nominal time to go."""
+    task = make_task(task_name)
+    policy = build_policy(task_name, spec)
+    episode, infos = run_policy_episode(task, policy, x0, index=index, record=record, label=spec.name)
+    if record_queries:
+        episode.queries = [
+            [*info.terminal_state, float(info.terminal_tau)] for info in infos if info.terminal_state is not None
+        ]
+    return episode
+
+
+def run_policy_episode(
+    task: Task,
+    policy: Any,
+    x0: np.ndarray,
+    *,
+    index: int = 0,
+    record: bool = False,
+    label: str = "",
+    env_id: str | None = None,
+) -> tuple[EpisodeResult, list[Any]]:
+    """One episode of a predictor object from ``x0`` in the task's env; also returns its per-step solver infos.
+
+    The infos are the MPC's :class:`~seagul_control.mpc.MPCStepInfo` of each step (empty for policies without
+    ``stats``); they carry the planned terminal states (the planner's queries of the value function).
+    """
     import gymnasium as gym
 
     import seagul_envs  # noqa: F401  (registers the envs)
 
-    task = make_task(task_name)
-    policy = build_policy(task_name, spec)
-    env = gym.make(ENV_IDS[task_name])
+    env = gym.make(env_id or ENV_IDS[task.name])
     obs, info = env.reset(options={"state": np.asarray(x0, dtype=float)})
     stats = getattr(policy, "stats", None)
     first_stat = len(stats) if stats is not None else 0
@@ -237,9 +268,9 @@ def run_episode(
     distance = float(np.linalg.norm(x - task.goal))
     episode = [] if stats is None else list(stats[first_stat:])
     if stats is not None:
-        stats.clear()  # keep worker memory flat over many episodes
-    return EpisodeResult(
-        policy=spec.name,
+        del stats[first_stat:]  # keep memory flat over many episodes
+    result = EpisodeResult(
+        policy=label or getattr(policy, "name", type(policy).__name__),
         index=index,
         start=np.asarray(x0, dtype=float).tolist(),
         final_state=x.tolist(),
@@ -253,6 +284,7 @@ def run_episode(
         fallbacks=sum(1 for s in episode if s.source != "solver"),
         states=states,
     )
+    return result, episode
 
 
 def is_success(task: Task, x: np.ndarray, terminated: bool = False) -> bool:
@@ -269,9 +301,14 @@ def is_success(task: Task, x: np.ndarray, terminated: bool = False) -> bool:
 
 
 def _run_chunk(
-    task_name: str, spec: PolicySpec, starts: np.ndarray, indices: Sequence[int], record: bool
+    task_name: str,
+    spec: PolicySpec,
+    starts: np.ndarray,
+    indices: Sequence[int],
+    record: bool,
+    record_queries: bool = False,
 ) -> list[EpisodeResult]:
-    return [run_episode(task_name, spec, x0, i, record) for x0, i in zip(starts, indices, strict=True)]
+    return [run_episode(task_name, spec, x0, i, record, record_queries) for x0, i in zip(starts, indices, strict=True)]
 
 
 def evaluate(
@@ -282,8 +319,13 @@ def evaluate(
     progress: bool = True,
     record: bool = False,
     chunk_size: int = 4,
+    record_queries: bool = False,
 ) -> list[EpisodeResult]:
-    """Every policy from every start (joblib processes when ``workers > 1``); results ordered by policy, start."""
+    """Every policy from every start (joblib processes when ``workers > 1``); results ordered by policy, start.
+
+    ``record`` keeps every visited state, ``record_queries`` the MPCs' planned terminal states (for the
+    planner-query error, :func:`seagul_learn.closed_loop.query_errors`).
+    """
     from joblib import Parallel, delayed
     from tqdm.auto import tqdm
 
@@ -308,11 +350,11 @@ def evaluate(
     results: list[EpisodeResult] = []
     if workers == 1:
         outputs: Iterator[list[EpisodeResult]] = (
-            _run_chunk(task_name, spec, starts[idx], idx, record) for spec, idx in jobs
+            _run_chunk(task_name, spec, starts[idx], idx, record, record_queries) for spec, idx in jobs
         )
     else:
         outputs = Parallel(n_jobs=int(workers), return_as="generator")(
-            delayed(_run_chunk)(task_name, spec, starts[idx], idx, record) for spec, idx in jobs
+            delayed(_run_chunk)(task_name, spec, starts[idx], idx, record, record_queries) for spec, idx in jobs
         )
     for chunk in outputs:
         results.extend(chunk)

@@ -104,6 +104,11 @@ class MPCStepInfo:
     """Which problem was solved: ``"lookahead"``, ``"final"`` or ``"full"``."""
     objective: float
     """Optimal objective (NaN on failure)."""
+    terminal_state: tuple[float, ...] | None = None
+    """The planned terminal state ``x_n`` of a converged solve whose terminal cost was the learned value (the
+    planner's *query* of ``Vhat``), else None."""
+    terminal_tau: float = float("nan")
+    """Time to go at ``x_n`` (``tau_now - sum(h)``) when :attr:`terminal_state` is set."""
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict (for JSON)."""
@@ -395,9 +400,13 @@ class _MPCBase:
         except Exception as exc:  # a solver exception must not stop a closed loop
             sol, ok = None, False
             status, iters, solve_time, objective = f"exception: {exc}", -1, time.perf_counter() - start, np.nan
+        terminal_state, terminal_tau = None, float("nan")
         if ok and sol is not None:
             u = sol.controls[0]
             source = "solver"
+            if self._queries_value(theta):
+                terminal_state = tuple(float(v) for v in sol.states[-1])
+                terminal_tau = float(tau - np.sum(sol.steps))
             self._plans[env_index] = _Plan(problem, sol.states, sol.controls, sol.steps, sol.lam_x, sol.lam_g)
         else:
             objective = float("nan")
@@ -412,6 +421,8 @@ class _MPCBase:
             step_time=time.perf_counter() - start,
             phase=problem.phase,
             objective=float(objective),
+            terminal_state=terminal_state,
+            terminal_tau=terminal_tau,
         )
         self.stats.append(info)
         return u, info
@@ -438,6 +449,10 @@ class _MPCBase:
     # ------------------------------------------------------------------ subclass hooks
     def _select(self, tau: float) -> tuple[_Problem, np.ndarray]:
         raise NotImplementedError
+
+    def _queries_value(self, theta: np.ndarray) -> bool:
+        """True when a solve with these parameters used a learned terminal cost (its ``x_n`` is a query)."""
+        return False
 
     # ------------------------------------------------------------------ building
     def _build(self, phase: str, pin: bool, shrink: bool = False, jit: bool = True, **kwargs: Any) -> _Problem:
@@ -717,6 +732,9 @@ class LimitedLookaheadMPC(_MPCBase):
         elif self.trust_region == "lqr":
             v = v + lf
         return ca.Function("mpc_terminal", [x, tau, theta], [s * v + (1 - s) * lf])
+
+    def _queries_value(self, theta: np.ndarray) -> bool:
+        return self._vf_fn is not None and theta.size > 0 and float(theta[-1]) == 1.0
 
     def terminal_cost_value(self, x: np.ndarray, tau_remaining: float) -> float:
         """The learned (guarded) terminal cost as the NLP sees it, for checks."""

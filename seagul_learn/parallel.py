@@ -64,7 +64,9 @@ def _chunks(n: int, workers: int, chunk_size: int | None) -> list[np.ndarray]:
     return [np.arange(i, min(i + chunk_size, n)) for i in range(0, n, chunk_size)]
 
 
-def _check_inputs(task_name: str, starts: np.ndarray, taus: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
+def _check_inputs(
+    task_name: str, starts: np.ndarray, taus: np.ndarray | None, tail: bool = False
+) -> tuple[np.ndarray, np.ndarray]:
     from seagul_envs.tasks import make_task
 
     task = make_task(task_name)
@@ -81,7 +83,7 @@ def _check_inputs(task_name: str, starts: np.ndarray, taus: np.ndarray | None) -
         if tau_arr.shape[0] != arr.shape[0]:
             raise ValueError(f"{task_name}: taus must have {arr.shape[0]} entries, got {tau_arr.shape[0]}")
     for t in tau_arr:
-        task.check_tau(t)
+        task.check_tau(t, allow_shorter=tail)
     return arr, tau_arr
 
 
@@ -120,8 +122,9 @@ def solve_many(
     Raises:
         ValueError: bad shapes, NaN starts, a ``tau`` outside the task's range, unknown backend or options.
     """
-    arr, tau_arr = _check_inputs(task_name, starts, taus)
     options = dict(solver_options or {})
+    tail = options.get("horizon") is not None
+    arr, tau_arr = _check_inputs(task_name, starts, taus, tail=tail)
     ray_address = options.pop("ray_address", None)
     frozen = _freeze(options)
     n = arr.shape[0]

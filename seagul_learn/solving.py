@@ -21,11 +21,37 @@ from typing import Any
 
 import numpy as np
 
+from seagul_envs.tasks.base import Task
 from seagul_learn.dataset import Dataset, DatasetError, SolveRecord
 from seagul_learn.results import SolveResult
 
 BatchSolver = Callable[[np.ndarray, np.ndarray], list[SolveResult]]
 """``(starts (n, nx), taus (n,)) -> list[SolveResult]`` in input order; never raises for an infeasible start."""
+
+
+def tail_horizon(task: Task, tau: float) -> int | None:
+    """Intervals of the tail problem from time to go ``tau``, or None when ``tau`` is a full-horizon time to go.
+
+    A fixed-step task's full problem has ``m`` intervals of ``h = tau_nominal / m``; a state reached with less time to
+    go (the MPC's planned terminal state, a mid-trajectory knot) is the start of the tail problem with
+    ``round(tau / h)`` intervals of the same ``h`` (Bellman's principle: its optimal cost is ``V(x, tau)``).
+    Free-time tasks solve every ``tau`` in T0 with their ``m`` free steps; below T0 they have no tail problem.
+
+    Raises:
+        ValueError: ``tau`` is not a multiple of the step (fixed-step tasks) or lies outside the solvable range.
+    """
+    lo, hi = task.tau_range
+    if lo - 1e-9 <= tau <= hi + 1e-9:
+        return None
+    if not task.fixed_step:
+        raise ValueError(f"{task.name}: time to go {tau} outside T0 = [{lo}, {hi}] s (free-time tasks have no tail)")
+    h = task.tau_nominal / task.num_steps
+    k = round(tau / h)
+    if not (1 <= k < task.num_steps) or abs(k * h - tau) > 1e-6:
+        raise ValueError(
+            f"{task.name}: time to go {tau} s is not a tail of the full problem (a multiple of {h} s below {hi} s)"
+        )
+    return int(k)
 
 
 def trajopt_batch_solver(
@@ -36,19 +62,39 @@ def trajopt_batch_solver(
     progress: bool = False,
     solver_options: dict[str, Any] | None = None,
 ) -> BatchSolver:
-    """The real solver: ``solve_many`` on the full-horizon trajectory optimizer (imported lazily)."""
+    """The real solver: ``solve_many`` on the full-horizon trajectory optimizer (imported lazily).
+
+    Requests whose ``tau`` is below T0 on a fixed-step task are tail problems (:func:`tail_horizon`): they are
+    grouped by their number of intervals and solved with ``horizon=k`` (one optimizer per ``k`` and worker, built
+    on first use and kept).
+    """
+    from seagul_envs import make_task
     from seagul_learn.parallel import solve_many  # the optimizer stack is only needed when actually solving
 
+    task = make_task(task_name)
+
     def solve(starts: np.ndarray, taus: np.ndarray) -> list[SolveResult]:
-        return solve_many(
-            task_name,
-            np.atleast_2d(np.asarray(starts, dtype=np.float64)),
-            np.asarray(taus, dtype=np.float64).reshape(-1),
-            workers=workers,
-            backend=backend,
-            progress=progress,
-            solver_options=solver_options,
-        )
+        starts = np.atleast_2d(np.asarray(starts, dtype=np.float64))
+        taus = np.asarray(taus, dtype=np.float64).reshape(-1)
+        horizons = [tail_horizon(task, float(t)) for t in taus]
+        out: list[SolveResult | None] = [None] * starts.shape[0]
+        for k in dict.fromkeys(horizons):
+            idx = [i for i, h in enumerate(horizons) if h == k]
+            options = dict(solver_options or {})
+            if k is not None:
+                options["horizon"] = k
+            results = solve_many(
+                task_name,
+                starts[idx],
+                taus[idx],
+                workers=workers,
+                backend=backend,
+                progress=progress,
+                solver_options=options,
+            )
+            for i, result in zip(idx, results, strict=True):
+                out[i] = result
+        return [r for r in out if r is not None]
 
     return solve
 

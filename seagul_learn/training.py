@@ -62,6 +62,7 @@ import torch
 from tqdm.auto import tqdm
 
 from seagul_envs import Task, available_tasks, make_task
+from seagul_learn.closed_loop import ClosedLoopOptions, ClosedLoopSampler
 from seagul_learn.dataset import (
     Dataset,
     SolveRecord,
@@ -75,7 +76,7 @@ from seagul_learn.samplers import AdversarialOptions, AdversarialSampler, Sample
 from seagul_learn.solving import BatchSolver, SolveRunner, solver_key, trajopt_batch_solver
 from seagul_learn.value_network import ValueNetwork
 
-SAMPLERS = ("uniform", "adversarial")
+SAMPLERS = ("uniform", "adversarial", "closed-loop")
 CHECKPOINT_FORMAT = "seagul-train-checkpoint"
 
 # Random streams: one id each, combined with the seed (and the round) into an independent generator.
@@ -94,7 +95,8 @@ class TrainConfig:
     task: str = "acrobot"
     """Task name (``seagul_envs.available_tasks()``)."""
     sampler: str = "adversarial"
-    """``"uniform"`` (baseline) or ``"adversarial"`` (paper Alg. 1)."""
+    """``"uniform"`` (baseline), ``"adversarial"`` (paper Alg. 1) or ``"closed-loop"`` (the deployed MPC's queries,
+    :mod:`seagul_learn.closed_loop`)."""
     budget: int = 100
     """Solves spent by the sampler (pretraining solves not included)."""
     solves_per_round: int = 10
@@ -133,6 +135,29 @@ class TrainConfig:
     """Adversarial: ascend in ``tau`` too when T0 is an interval."""
     adv_stop_on_decrease: bool = False
     """Adversarial: end a chain when its loss decreased from the previous iterate."""
+    cl_episodes: int = 20
+    """Closed-loop: MPC episodes per round (training starts from X0, never the evaluation grid)."""
+    cl_horizon: int = 0
+    """Closed-loop: lookahead steps of the collecting MPC (0 = the task's default, as deployed)."""
+    cl_trust_region: str = "none"
+    """Closed-loop: guard of the collecting (deployed) MPC after the warm-up rounds."""
+    cl_warmup_rounds: int = 1
+    """Closed-loop: first rounds collect with the ``"lqr"``-guarded MPC (teachable queries)."""
+    cl_selection: str = "farthest"
+    """Closed-loop: which queries to solve: ``"farthest"`` from the data, ``"lowest"`` under-estimates, ``"random"``."""
+    cl_tail_stride: int = 1
+    """Closed-loop: only queries whose tail has a multiple of this many intervals."""
+    cl_uniform_fraction: float = 0.0
+    """Closed-loop: share of each round's solves spent on uniform draws from X0."""
+    cl_uniform_solves: int = 0
+    """Closed-loop: budget solves spent on uniform draws before the first closed-loop round."""
+    cl_jit: bool = True
+    """Closed-loop: compile the collecting MPC (False: interpreted, for tests)."""
+    value_cap: float = 0.0
+    """Labels above this value are clipped to it and their gradient labels dropped (0 = off): a tail problem from
+    a far-off query can cost 1e4 and would otherwise swamp the loss; the clipped label still says "expensive"."""
+    snapshots: tuple[int, ...] = ()
+    """Budgets (solves) after whose round ``network_<solves>.pt`` is saved (success-per-solve curves from one run)."""
     uniform_tau: bool = False
     """Draw uniform starts' ``tau`` from T0 instead of using the nominal value."""
     eval_every: int = 0
@@ -153,10 +178,11 @@ class TrainConfig:
     """Show progress bars."""
 
     # Fields that may change between an interrupted run and its resumption (they cannot change the results).
-    RUNTIME_FIELDS = ("workers", "backend", "cache_dir", "progress")
+    RUNTIME_FIELDS = ("workers", "backend", "cache_dir", "progress", "snapshots")
 
     def __post_init__(self) -> None:
         self.hidden = tuple(int(h) for h in self.hidden)
+        self.snapshots = tuple(sorted({int(b) for b in self.snapshots}))
         self.validate_values()
 
     def validate_values(self) -> None:
@@ -182,6 +208,25 @@ class TrainConfig:
         if not self.hidden or any(h < 1 for h in self.hidden):
             raise ValueError(f"hidden must be positive layer widths, got {self.hidden}")
         self.adversarial_options()  # validates the adv_* fields
+        self.closed_loop_options()  # validates the cl_* fields
+        if not (self.value_cap >= 0 and math.isfinite(self.value_cap)):
+            raise ValueError(f"value_cap must be a number >= 0 (0 = off), got {self.value_cap}")
+        if any(b < 1 for b in self.snapshots):
+            raise ValueError(f"snapshots must be budgets >= 1, got {list(self.snapshots)}")
+
+    def closed_loop_options(self) -> ClosedLoopOptions:
+        """The closed-loop sampler's options from the ``cl_*`` fields."""
+        return ClosedLoopOptions(
+            episodes=self.cl_episodes,
+            horizon=self.cl_horizon or None,
+            trust_region=self.cl_trust_region,
+            warmup_rounds=self.cl_warmup_rounds,
+            selection=self.cl_selection,  # type: ignore[arg-type]
+            tail_stride=self.cl_tail_stride,
+            uniform_fraction=self.cl_uniform_fraction,
+            uniform_solves=self.cl_uniform_solves,
+            jit=self.cl_jit,
+        )
 
     def adversarial_options(self) -> AdversarialOptions:
         """The adversarial sampler's options from the ``adv_*`` fields."""
@@ -205,6 +250,7 @@ class TrainConfig:
         """JSON-ready dict of the fields."""
         out = asdict(self)
         out["hidden"] = list(self.hidden)
+        out["snapshots"] = list(self.snapshots)
         return out
 
     @classmethod
@@ -320,13 +366,19 @@ def _rng(seed: int, stream: int, index: int = 0) -> np.random.Generator:
     return np.random.default_rng([int(seed), int(stream), int(index)])
 
 
-def _as_tensors(arrays: TrainingArrays) -> dict[str, torch.Tensor]:
+def _as_tensors(arrays: TrainingArrays, value_cap: float = 0.0) -> dict[str, torch.Tensor]:
+    value = arrays.value
+    grad_ok = np.all(np.isfinite(arrays.grad_x), axis=1)
+    if value_cap > 0:
+        # A clipped label keeps "expensive" without its scale; its gradient label no longer applies.
+        grad_ok &= value <= value_cap
+        value = np.minimum(value, value_cap)
     return {
         "x": torch.tensor(arrays.x, dtype=torch.float64),
         "tau": torch.tensor(arrays.tau, dtype=torch.float64),
-        "value": torch.tensor(arrays.value, dtype=torch.float64),
+        "value": torch.tensor(value, dtype=torch.float64),
         "grad_x": torch.tensor(np.nan_to_num(arrays.grad_x), dtype=torch.float64),
-        "grad_ok": torch.tensor(np.all(np.isfinite(arrays.grad_x), axis=1)),
+        "grad_ok": torch.tensor(grad_ok),
     }
 
 
@@ -395,7 +447,7 @@ class _Trainer:
     ) -> None:
         if len(buffer) == 0 or steps == 0:
             return
-        data = _as_tensors(buffer)
+        data = _as_tensors(buffer, self.config.value_cap)
         fraction = self.config.newest_fraction
         for _ in range(steps):
             batch = _minibatch(data, newest, self.config.batch_size, fraction, rng)
@@ -425,6 +477,8 @@ def _make_sampler(config: TrainConfig, task: Task) -> Sampler:
     pool = StartPool.uniform(task, config.budget, _rng(config.seed, _STREAM_BASELINE_STARTS), config.uniform_tau)
     if config.sampler == "uniform":
         return UniformSampler(task, pool)
+    if config.sampler == "closed-loop":
+        return ClosedLoopSampler(task, pool, config.closed_loop_options(), seed=config.seed)
     return AdversarialSampler(
         task, pool.shuffled(_rng(config.seed, _STREAM_ADVERSARIAL_ORDER)), config.adversarial_options()
     )
@@ -522,6 +576,8 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
         trainer.metrics = [Metric(**m) for m in state["metrics"]]
         rounds_done = int(state["rounds_done"])
         sampler.pool.position = int(state["pool_position"])
+        if "sampler_state" in state and hasattr(sampler, "load_state_dict"):
+            sampler.load_state_dict(json.loads(state["sampler_state"]))
         runner.next_index = int(state["next_index"])
         budget_records = [dataset.read(i) for i in range(config.pretrain_solves, runner.next_index)]
         new = training_arrays(budget_records, task.nx)
@@ -538,7 +594,7 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
         )
         trainer.optimizer = torch.optim.Adam(network.parameters(), lr=config.lr)  # fresh Adam for the rounds
         trainer.record_metric(0, 0, config.pretrain_solves)
-        _save_checkpoint(checkpoint_path, trainer, 0, sampler.pool.position, runner.next_index)
+        _save_checkpoint(checkpoint_path, trainer, 0, sampler, runner.next_index)
 
     bar = tqdm(
         total=config.num_rounds,
@@ -549,6 +605,8 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
     )
     for round_index in range(rounds_done, config.num_rounds):
         n_new = min(config.solves_per_round, config.budget - round_index * config.solves_per_round)
+        if hasattr(sampler, "observe"):
+            sampler.observe(buffer)
         records = sampler.sample(n_new, network, runner)
         budget_records += records
         new = training_arrays(records, task.nx)
@@ -570,19 +628,22 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
             or (trainer.metrics[-1].solves != solves)
         ):
             trainer.record_metric(solves, failures, buffer_solves)
-        _save_checkpoint(checkpoint_path, trainer, round_index + 1, sampler.pool.position, runner.next_index)
+        _save_checkpoint(checkpoint_path, trainer, round_index + 1, sampler, runner.next_index)
+        if solves in config.snapshots:
+            network.save(out / f"network_{solves}.pt")
         bar.set_postfix(mse_initial=f"{trainer.metrics[-1].mse_initial:.3g}", failures=failures)
         bar.update(1)
     bar.close()
 
     network.save(out / "network.pt")
-    _write_metrics(out, trainer.metrics, config)
+    _write_metrics(out, trainer.metrics, config, getattr(sampler, "log", None))
     return TrainResult(network, trainer.metrics, out, len(budget_records), count_failures(budget_records), dataset)
 
 
 # ------------------------------------------------------------------------------------------------- checkpoints
-def _save_checkpoint(path: Path, trainer: _Trainer, rounds_done: int, pool_position: int, next_index: int) -> None:
-    payload = {
+def _save_checkpoint(path: Path, trainer: _Trainer, rounds_done: int, sampler: Sampler, next_index: int) -> None:
+    pool_position = sampler.pool.position  # type: ignore[attr-defined]
+    payload: dict[str, Any] = {
         "format": CHECKPOINT_FORMAT,
         "rounds_done": rounds_done,
         "network": trainer.network.state_dict(),
@@ -592,6 +653,8 @@ def _save_checkpoint(path: Path, trainer: _Trainer, rounds_done: int, pool_posit
         "pool_position": pool_position,
         "next_index": next_index,
     }
+    if hasattr(sampler, "state_dict"):
+        payload["sampler_state"] = json.dumps(sampler.state_dict())
     buf = io.BytesIO()
     torch.save(payload, buf)
     atomic_write_bytes(path, buf.getvalue())
@@ -608,9 +671,13 @@ def _load_checkpoint(path: Path) -> dict[str, Any]:
 
 
 # ----------------------------------------------------------------------------------------------------- outputs
-def _write_metrics(out: Path, metrics: list[Metric], config: TrainConfig) -> None:
+def _write_metrics(
+    out: Path, metrics: list[Metric], config: TrainConfig, sampler_log: list[dict[str, Any]] | None = None
+) -> None:
     rows = [asdict(m) for m in metrics]
-    payload = {"config": config.to_dict(), "metrics": rows}
+    payload: dict[str, Any] = {"config": config.to_dict(), "metrics": rows}
+    if sampler_log is not None:
+        payload["sampler_log"] = sampler_log
     atomic_write_text(out / "metrics.json", json.dumps(payload, indent=2, allow_nan=True))
     text = io.StringIO()
     writer = csv.DictWriter(text, fieldnames=list(rows[0]) if rows else [f.name for f in fields(Metric)])

@@ -29,6 +29,19 @@ def hidden_widths(value: str) -> tuple[int, ...]:
     return widths
 
 
+def budgets(value: str) -> tuple[int, ...]:
+    """``"100,300,1000"``: solve counts."""
+    if not value.strip():
+        return ()
+    try:
+        out = tuple(int(v) for v in value.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"expected comma-separated integers like 100,300, got {value!r}") from None
+    if any(b < 1 for b in out):
+        raise argparse.ArgumentTypeError(f"budgets must be >= 1, got {value!r}")
+    return out
+
+
 def json_object(value: str) -> dict[str, Any]:
     """A JSON object (solver options)."""
     try:
@@ -46,7 +59,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
     d = TrainConfig()
     add_task_argument(parser)
-    parser.add_argument("--sampler", choices=("uniform", "adversarial"), default=d.sampler, help="sample selection")
+    parser.add_argument(
+        "--sampler", choices=("uniform", "adversarial", "closed-loop"), default=d.sampler, help="sample selection"
+    )
     parser.add_argument("--budget", type=positive_int, default=d.budget, help="solves spent by the sampler")
     parser.add_argument("--seed", type=int, default=d.seed, help="seed of every random stream")
     parser.add_argument("--out", required=True, help="run directory (created; must be new unless --resume)")
@@ -66,6 +81,22 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--adv-optimizer", choices=("pga", "adam"), default=d.adv_optimizer)
     parser.add_argument("--adv-projection", choices=("clip", "reflect"), default=d.adv_projection)
     parser.add_argument("--adv-uniform-fraction", type=fraction, default=d.adv_uniform_fraction)
+    parser.add_argument("--adv-ascend-tau", action=argparse.BooleanOptionalAction, default=d.adv_ascend_tau)
+    parser.add_argument("--adv-stop-on-decrease", action=argparse.BooleanOptionalAction, default=d.adv_stop_on_decrease)
+    parser.add_argument("--uniform-tau", action=argparse.BooleanOptionalAction, default=d.uniform_tau)
+    parser.add_argument("--cl-episodes", type=positive_int, default=d.cl_episodes, help="MPC episodes per round")
+    parser.add_argument("--cl-horizon", type=non_negative_int, default=d.cl_horizon, help="0 = the task's default")
+    parser.add_argument("--cl-trust-region", choices=("none", "lqr", "box"), default=d.cl_trust_region)
+    parser.add_argument("--cl-warmup-rounds", type=non_negative_int, default=d.cl_warmup_rounds)
+    parser.add_argument("--cl-selection", choices=("farthest", "lowest", "random"), default=d.cl_selection)
+    parser.add_argument("--cl-tail-stride", type=positive_int, default=d.cl_tail_stride)
+    parser.add_argument("--cl-uniform-fraction", type=fraction, default=d.cl_uniform_fraction)
+    parser.add_argument("--cl-uniform-solves", type=non_negative_int, default=d.cl_uniform_solves)
+    parser.add_argument("--cl-jit", action=argparse.BooleanOptionalAction, default=d.cl_jit)
+    parser.add_argument("--value-cap", type=non_negative_float, default=d.value_cap, help="clip labels (0 = off)")
+    parser.add_argument(
+        "--snapshots", type=budgets, default=d.snapshots, help="save network_<n>.pt at these budgets, e.g. 100,300"
+    )
     parser.add_argument("--eval-every", type=non_negative_int, default=d.eval_every)
     parser.add_argument("--solver-options", type=json_object, default=None, help="trajectory-optimizer options (JSON)")
     parser.add_argument("--cache-dir", default=None, help="validation-set cache (default $SEAGUL_CACHE_DIR)")
@@ -97,6 +128,20 @@ def config_from_args(args: argparse.Namespace) -> Any:
         adv_optimizer=args.adv_optimizer,
         adv_projection=args.adv_projection,
         adv_uniform_fraction=args.adv_uniform_fraction,
+        adv_ascend_tau=args.adv_ascend_tau,
+        adv_stop_on_decrease=args.adv_stop_on_decrease,
+        uniform_tau=args.uniform_tau,
+        cl_episodes=args.cl_episodes,
+        cl_horizon=args.cl_horizon,
+        cl_trust_region=args.cl_trust_region,
+        cl_warmup_rounds=args.cl_warmup_rounds,
+        cl_selection=args.cl_selection,
+        cl_tail_stride=args.cl_tail_stride,
+        cl_uniform_fraction=args.cl_uniform_fraction,
+        cl_uniform_solves=args.cl_uniform_solves,
+        cl_jit=args.cl_jit,
+        value_cap=args.value_cap,
+        snapshots=args.snapshots,
         eval_every=args.eval_every,
         workers=args.workers,
         backend=args.backend,

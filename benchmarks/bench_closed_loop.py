@@ -1,0 +1,434 @@
+"""Closed-loop success per solve: which way of spending NLP solves gives a learned MPC that controls (issue 10).
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_closed_loop.py [--quick] [--seeds N] [--workers 2] [--out DIR] [--tasks acrobot]
+
+For every learning method (uniform, adversarial = paper Alg. 1, each with and without Sobolev training, and the
+closed-loop sampler with Sobolev training) and every seed, one training run to the largest budget saves a network
+snapshot at each budget (``TrainConfig.snapshots``; a run's first ``b`` solves are exactly a budget-``b`` run's).
+Every snapshot then drives the deployed controller — ``LimitedLookaheadMPC(task, network, horizon,
+trust_region=...)`` — in closed loop in the task's Gymnasium env from
+
+* the evaluation grid (acrobot 20 x 20 over ``(th1, th2)`` at zero velocity; ``--quick`` 5 x 5), and
+* 100 held-out starts drawn uniformly from X0 with their own seed (``--quick`` 20), never trained on,
+
+next to the full-horizon MPC on the same starts. Reported per method and budget: success (median and
+25-75 % band over seeds, every seed listed), the validation MSEs, the cumulative NLP solve time of the budget, and
+the **planner-query error** ``|Vhat - V|`` at a sample of the MPC's planned terminal states (median, 95th
+percentile, mean signed error) against re-solved tail problems. Paired Wilcoxon tests compare each method with the
+closed-loop sampler at each budget, seed by seed. ``success_vs_solves.png`` plots success against solves and
+against solve time.
+
+Every stage stores its result under ``--out`` before the next starts (training runs checkpoint per round, every
+evaluation is a JSON file), so an interrupted benchmark re-run with the same ``--out`` continues where it stopped.
+
+The last line of stdout is one JSON object (the full run's is committed as ``benchmarks/results/closed_loop.json``)::
+
+    {"acrobot": {"method", "budget", "seeds", "success_rate", "full_horizon_success_rate", "heldout_success_rate",
+                 "network", "horizon", "trust_region", "median_ms", "p95_ms", "query_error_median", ...},
+     "machine": {...}}
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import shutil
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from seagul_control.evaluation import PolicySpec, evaluate, start_grid  # noqa: E402
+from seagul_envs import make_task  # noqa: E402
+
+#: Learning methods: TrainConfig overrides on top of :data:`COMMON` (the shipped default is ``SHIPPED``).
+METHODS: dict[str, dict[str, Any]] = {
+    "uniform": {"sampler": "uniform"},
+    "adversarial": {"sampler": "adversarial"},
+    "uniform+sobolev": {"sampler": "uniform", "sobolev_weight": 1.0},
+    "adversarial+sobolev": {"sampler": "adversarial", "sobolev_weight": 1.0},
+    "closed-loop+sobolev": {"sampler": "closed-loop", "sobolev_weight": 1.0},
+}
+SHIPPED = "closed-loop+sobolev"
+
+
+@dataclass
+class BenchConfig:
+    """Every number of one benchmark run (``--quick`` replaces some of them)."""
+
+    task: str = "acrobot"
+    budgets: tuple[int, ...] = (100, 300, 1000, 2000)
+    seeds: int = 5
+    grid: int = 20
+    heldout: int = 100
+    query_sample: int = 30
+    horizon: int = 5
+    trust_region: str = "none"
+    methods: tuple[str, ...] = tuple(METHODS)
+    train: dict[str, Any] = field(default_factory=dict)
+    """TrainConfig fields shared by every method."""
+
+    @classmethod
+    def for_task(cls, task: str, quick: bool) -> BenchConfig:
+        from seagul_learn.training import TrainConfig
+
+        defaults = TrainConfig()
+        common = {
+            "hidden": defaults.hidden,
+            "solves_per_round": defaults.solves_per_round,
+            "train_steps_per_round": defaults.train_steps_per_round,
+        }
+        if quick:
+            return cls(
+                task=task,
+                budgets=(25, 50),
+                seeds=2,
+                grid=3,
+                heldout=4,
+                query_sample=6,
+                methods=("uniform+sobolev", SHIPPED),
+                train={**common, "train_steps_per_round": 100, "cl_episodes": 4},
+            )
+        return cls(task=task, train=common)
+
+
+# ------------------------------------------------------------------------------------------------ training
+def _train_one(cfg: dict[str, Any], out: str) -> str:
+    from seagul_learn.training import TrainConfig, train
+
+    config = TrainConfig(**cfg)
+    done = Path(out) / "metrics.json"
+    if not done.is_file():
+        train(config, out, resume=(Path(out) / "config.json").is_file())
+    return out
+
+
+def train_all(bench: BenchConfig, out: Path, workers: int) -> dict[tuple[str, int], Path]:
+    """One run per (method, seed) to the largest budget, snapshots at every budget."""
+    from joblib import Parallel, delayed
+
+    jobs = {}
+    for method in bench.methods:
+        for seed in range(bench.seeds):
+            cfg = {
+                "task": bench.task,
+                **bench.train,
+                **METHODS[method],
+                "budget": max(bench.budgets),
+                "snapshots": tuple(bench.budgets),
+                "seed": seed,
+                "progress": False,
+            }
+            jobs[(method, seed)] = (cfg, str(out / "train" / f"{method}-seed{seed}"))
+    # Closed-loop runs first: they are the longest (tail solves), so the pool stays busy to the end.
+    order = sorted(jobs, key=lambda k: (k[0] != SHIPPED, k))
+    t0 = time.perf_counter()
+    Parallel(n_jobs=workers)(delayed(_train_one)(*jobs[k]) for k in order)
+    print(f"[bench] training {len(jobs)} runs: {time.perf_counter() - t0:.0f} s", file=sys.stderr, flush=True)
+    return {k: Path(v[1]) for k, v in jobs.items()}
+
+
+def snapshot_path(run: Path, budget: int, final: int) -> Path:
+    """The network of ``run`` after ``budget`` solves."""
+    return run / ("network.pt" if budget == final else f"network_{budget}.pt")
+
+
+def budget_stats(run: Path, budget: int, pretrain: int) -> dict[str, float]:
+    """Validation MSEs at ``budget`` and the NLP solve time spent to get there (pretraining included)."""
+    metrics = json.loads((run / "metrics.json").read_text())["metrics"]
+    at = [m for m in metrics if int(m["solves"]) == budget]
+    row = at[-1] if at else metrics[-1]
+    solve_time, failures = 0.0, 0
+    records_dir = run / "dataset" / "records"
+    for path in sorted(records_dir.glob("solve-*.npz"))[: pretrain + budget]:
+        with np.load(path, allow_pickle=False) as data:
+            solve_time += float(data["solve_time"])
+            failures += int(not bool(data["success"]))
+    return {
+        "mse_initial": float(row["mse_initial"]),
+        "mse_all_knots": float(row["mse_all_knots"]),
+        "solve_time_s": solve_time,
+        "failures": failures,
+    }
+
+
+# ---------------------------------------------------------------------------------------------- evaluation
+def heldout_starts(task_name: str, n: int) -> np.ndarray:
+    """``n`` starts drawn uniformly from X0 with the held-out seed (never a training stream)."""
+    return make_task(task_name).sample_x0(np.random.default_rng(20211231), n)
+
+
+def evaluate_network(
+    bench: BenchConfig, path: Path, starts: np.ndarray, n_grid: int, workers: int, out: Path
+) -> dict[str, Any]:
+    """Closed loop of one snapshot on grid + held-out starts, with its planner-query error (cached as JSON)."""
+    if out.is_file():
+        return json.loads(out.read_text())
+    from seagul_learn.closed_loop import query_errors
+    from seagul_learn.solving import trajopt_batch_solver
+    from seagul_learn.value_network import ValueNetwork
+
+    spec = PolicySpec(
+        "mpc",
+        "mpc",
+        str(path),
+        (("horizon", bench.horizon), ("trust_region", bench.trust_region), ("jit", True)),
+    )
+    results = evaluate(bench.task, [spec], starts, workers=workers, progress=False, record_queries=True)
+    grid, held = results[:n_grid], results[n_grid:]
+    queries = np.array([q for r in results for q in r.queries]).reshape(-1, make_task(bench.task).nx + 1)
+    solver = trajopt_batch_solver(bench.task, workers=workers)
+    qe = query_errors(make_task(bench.task), ValueNetwork.load(path), queries, solver, bench.query_sample)
+    times = np.array([t for r in results for t in r.solve_times])
+    row = {
+        "success_rate": float(np.mean([r.success for r in grid])),
+        "heldout_success_rate": float(np.mean([r.success for r in held])) if held else float("nan"),
+        "grid_success": [bool(r.success) for r in grid],
+        "fallback_steps": int(sum(r.fallbacks for r in results)),
+        "steps": int(sum(r.steps for r in results)),
+        "median_ms": float(np.median(times) * 1e3),
+        "p95_ms": float(np.percentile(times, 95) * 1e3),
+        "query_error": qe.as_dict(),
+    }
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(row, indent=1))
+    return row
+
+
+def full_horizon(bench: BenchConfig, starts: np.ndarray, n_grid: int, workers: int, out: Path) -> dict[str, Any]:
+    """The full-horizon MPC on the same starts (the upper reference; cached)."""
+    if out.is_file():
+        return json.loads(out.read_text())
+    results = evaluate(bench.task, [PolicySpec("full", "full-horizon")], starts, workers=workers, progress=False)
+    grid, held = results[:n_grid], results[n_grid:]
+    row = {
+        "success_rate": float(np.mean([r.success for r in grid])),
+        "heldout_success_rate": float(np.mean([r.success for r in held])) if held else float("nan"),
+        "grid_success": [bool(r.success) for r in grid],
+    }
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(row, indent=1))
+    return row
+
+
+def timed_steps(bench: BenchConfig, path: Path, starts: np.ndarray) -> dict[str, float]:
+    """MPC solver step times of the shipped network in one process (no parallel episodes sharing the cores)."""
+    spec = PolicySpec(
+        "mpc", "timed", str(path), (("horizon", bench.horizon), ("trust_region", bench.trust_region), ("jit", True))
+    )
+    results = evaluate(bench.task, [spec], starts, workers=1, progress=False)
+    times = np.array([t for r in results for t in r.solve_times]) * 1e3
+    return {"median_ms": float(np.median(times)), "p95_ms": float(np.percentile(times, 95)), "steps": int(times.size)}
+
+
+# ----------------------------------------------------------------------------------------------- statistics
+def paired_test(a: list[float], b: list[float]) -> dict[str, float]:
+    """Seed-paired comparison of success rates (``a`` minus ``b``): median difference, wins, Wilcoxon p."""
+    d = np.asarray(a) - np.asarray(b)
+    p = float("nan")
+    if d.size >= 2 and np.any(d != 0):
+        from scipy.stats import wilcoxon
+
+        p = float(wilcoxon(d).pvalue)
+    return {"median_difference": float(np.median(d)), "wins": int(np.sum(d > 0)), "losses": int(np.sum(d < 0)), "p": p}
+
+
+def summarize(bench: BenchConfig, table: dict[str, dict[int, list[dict[str, Any]]]], full: dict[str, Any]) -> dict:
+    """Per method and budget: medians, bands and per-seed lists; paired tests against the shipped method."""
+    out: dict[str, Any] = {}
+    target = 0.98 * full["success_rate"]
+    for method, by_budget in table.items():
+        rows = {}
+        reached = None
+        for budget in sorted(by_budget):
+            seeds = by_budget[budget]
+            succ = [s["success_rate"] for s in seeds]
+            rows[str(budget)] = {
+                "success_median": float(np.median(succ)),
+                "success_q25": float(np.percentile(succ, 25)),
+                "success_q75": float(np.percentile(succ, 75)),
+                "success_per_seed": succ,
+                "heldout_median": float(np.median([s["heldout_success_rate"] for s in seeds])),
+                "heldout_per_seed": [s["heldout_success_rate"] for s in seeds],
+                "mse_initial_median": float(np.median([s["mse_initial"] for s in seeds])),
+                "mse_all_knots_median": float(np.median([s["mse_all_knots"] for s in seeds])),
+                "solve_time_s_median": float(np.median([s["solve_time_s"] for s in seeds])),
+                "failures_median": float(np.median([s["failures"] for s in seeds])),
+                "query_error_median": float(np.nanmedian([s["query_error"]["median"] for s in seeds])),
+                "query_error_p95": float(np.nanmedian([s["query_error"]["p95"] for s in seeds])),
+                "query_error_mean_signed": float(np.nanmedian([s["query_error"]["mean_signed"] for s in seeds])),
+                "fallback_steps_median": float(np.median([s["fallback_steps"] for s in seeds])),
+            }
+            if method != SHIPPED and SHIPPED in table and budget in table[SHIPPED]:
+                shipped = [s["success_rate"] for s in table[SHIPPED][budget]]
+                rows[str(budget)]["vs_shipped"] = paired_test(shipped, succ)
+            if reached is None and np.median(succ) >= target:
+                reached = budget
+        out[method] = {"budgets": rows, "smallest_budget_98pct_of_full_horizon": reached}
+    return out
+
+
+def plot(summary: dict[str, Any], full: dict[str, Any], path: Path, title: str) -> None:
+    """``success_vs_solves.png``: success vs solves and vs cumulative solve time, median and band over seeds."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), constrained_layout=True)
+    for method, block in summary.items():
+        budgets = sorted(int(b) for b in block["budgets"])
+        rows = [block["budgets"][str(b)] for b in budgets]
+        med = [100 * r["success_median"] for r in rows]
+        lo = [100 * r["success_q25"] for r in rows]
+        hi = [100 * r["success_q75"] for r in rows]
+        for ax, xs in ((axes[0], budgets), (axes[1], [r["solve_time_s_median"] for r in rows])):
+            (line,) = ax.plot(xs, med, marker="o", label=method, lw=2.5 if method == SHIPPED else 1.5)
+            ax.fill_between(xs, lo, hi, color=line.get_color(), alpha=0.15)
+    for ax, label in ((axes[0], "NLP solves per network"), (axes[1], "NLP solve time per network (s)")):
+        ax.axhline(100 * full["success_rate"], color="k", ls="--", lw=1, label="full-horizon MPC")
+        ax.axhline(98 * full["success_rate"], color="k", ls=":", lw=1, label="98 % of full horizon")
+        ax.set_xscale("log")
+        ax.set_xlabel(label)
+        ax.set_ylabel("closed-loop success on the grid (%)")
+        ax.set_ylim(-3, 103)
+        ax.grid(True, which="both", alpha=0.3)
+    axes[0].legend(fontsize=8, loc="lower right")
+    fig.suptitle(title)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# --------------------------------------------------------------------------------------------------- a task
+def run_task(bench: BenchConfig, out: Path, workers: int, ship_dir: Path | None) -> dict[str, Any]:
+    t_start = time.perf_counter()
+    task = make_task(bench.task)
+    grid_starts, _ = start_grid(task, bench.grid)
+    starts = np.vstack([grid_starts, heldout_starts(bench.task, bench.heldout)])
+    n_grid = grid_starts.shape[0]
+    runs = train_all(bench, out, workers)
+    full = full_horizon(bench, starts, n_grid, workers, out / "eval" / "full-horizon.json")
+    print(f"[bench] full horizon: {full['success_rate']:.3f}", file=sys.stderr, flush=True)
+    final = max(bench.budgets)
+    pretrain = int(bench.train.get("pretrain_solves", 10))
+    table: dict[str, dict[int, list[dict[str, Any]]]] = {}
+    for (method, seed), run in sorted(runs.items()):
+        for budget in bench.budgets:
+            path = snapshot_path(run, budget, final)
+            row = evaluate_network(
+                bench, path, starts, n_grid, workers, out / "eval" / f"{method}-seed{seed}-b{budget}.json"
+            )
+            row = {**row, **budget_stats(run, budget, pretrain), "seed": seed, "network": str(path)}
+            table.setdefault(method, {}).setdefault(budget, []).append(row)
+            print(
+                f"[bench] {method} seed {seed} budget {budget}: success {row['success_rate']:.3f} "
+                f"held-out {row['heldout_success_rate']:.3f}",
+                file=sys.stderr,
+                flush=True,
+            )
+    summary = summarize(bench, table, full)
+    plot(summary, full, out / "success_vs_solves.png", f"{bench.task}: {bench.horizon}-step MPC, {bench.seeds} seeds")
+    shipped = table[SHIPPED][final]
+    med = float(np.median([s["success_rate"] for s in shipped]))
+    # The shipped network: the seed whose grid success is closest to the median (a representative one).
+    rep = min(shipped, key=lambda s: (abs(s["success_rate"] - med), s["seed"]))
+    network = Path(rep["network"])
+    if ship_dir is not None:
+        ship_dir.mkdir(parents=True, exist_ok=True)
+        dest = ship_dir / f"{bench.task}_{SHIPPED.replace('+', '_')}_b{final}.pt"
+        shutil.copyfile(network, dest)
+        network = dest
+        shutil.copyfile(out / "success_vs_solves.png", ship_dir.parent / f"success_vs_solves_{bench.task}.png")
+    timing = timed_steps(bench, network, grid_starts)
+    try:
+        net_rel = str(network.resolve().relative_to(ROOT))
+    except ValueError:
+        net_rel = str(network)
+    block = {
+        "method": SHIPPED,
+        "budget": final,
+        "seeds": bench.seeds,
+        "success_rate": med,
+        "full_horizon_success_rate": full["success_rate"],
+        "heldout_success_rate": float(np.median([s["heldout_success_rate"] for s in shipped])),
+        "full_horizon_heldout_success_rate": full["heldout_success_rate"],
+        "network": net_rel,
+        "network_seed": rep["seed"],
+        "horizon": bench.horizon,
+        "trust_region": bench.trust_region,
+        "median_ms": timing["median_ms"],
+        "p95_ms": timing["p95_ms"],
+        "query_error_median": float(np.nanmedian([s["query_error"]["median"] for s in shipped])),
+        "query_error_p95": float(np.nanmedian([s["query_error"]["p95"] for s in shipped])),
+        "grid": f"{bench.grid}x{bench.grid}",
+        "heldout_starts": bench.heldout,
+        "budgets": list(bench.budgets),
+        "methods": summary,
+        "train_settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in bench.train.items()},
+        "wall_s": round(time.perf_counter() - t_start, 1),
+    }
+    return block
+
+
+def machine() -> dict[str, Any]:
+    import casadi
+
+    cpu = platform.processor()
+    try:
+        lines = Path("/proc/cpuinfo").read_text().splitlines()
+        cpu = next((ln.split(":", 1)[1].strip() for ln in lines if "model name" in ln), cpu)
+    except OSError:
+        pass
+    return {
+        "python": platform.python_version(),
+        "casadi": casadi.__version__,
+        "cpu": cpu,
+        "cores": os.cpu_count(),
+        "load_avg_1m": round(os.getloadavg()[0], 2),
+    }
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="a minutes-long check of the pipeline")
+    parser.add_argument("--seeds", type=int, default=None, help="override the number of seeds")
+    parser.add_argument("--workers", type=int, default=2, help="parallel processes (training runs, episodes)")
+    parser.add_argument("--out", default=None, help="work directory (default /tmp/seagul-bench-closed-loop[-quick])")
+    parser.add_argument("--tasks", default="acrobot", help="comma-separated tasks (acrobot)")
+    parser.add_argument("--methods", default=None, help="comma-separated subset of " + ",".join(METHODS))
+    parser.add_argument("--budgets", default=None, help="comma-separated budgets (override)")
+    parser.add_argument("--no-ship", action="store_true", help="do not copy the shipped network into the repository")
+    args = parser.parse_args(argv)
+    out = Path(args.out or f"/tmp/seagul-bench-closed-loop{'-quick' if args.quick else ''}")
+    ship = None if (args.quick or args.no_ship) else ROOT / "benchmarks" / "results" / "networks"
+    result: dict[str, Any] = {}
+    t0 = time.perf_counter()
+    for task in args.tasks.split(","):
+        bench = BenchConfig.for_task(task, args.quick)
+        if args.seeds is not None:
+            bench.seeds = args.seeds
+        if args.methods:
+            bench.methods = tuple(m for m in args.methods.split(",") if m)
+            unknown = set(bench.methods) - set(METHODS)
+            if unknown or SHIPPED not in bench.methods:
+                parser.error(f"--methods must name known methods including {SHIPPED}; unknown: {sorted(unknown)}")
+        if args.budgets:
+            bench.budgets = tuple(int(b) for b in args.budgets.split(","))
+        result[task] = run_task(bench, out / task, args.workers, ship)
+    result["machine"] = {**machine(), "wall_s": round(time.perf_counter() - t0, 1)}
+    print(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,396 @@
+"""The closed-loop sampler: SEAGuL's idea applied to the distribution the controller actually queries.
+
+A limited-lookahead MPC (paper Eq. 3) minimises ``sum_k h l(x_k, u_k) + Vhat(x_n, tau_n)``: its optimizer searches
+for terminal states where ``Vhat`` is low, so it finds the network's *under-estimates* wherever they are, including
+states that no uniform draw or validation set looks at. Validation accuracy then does not carry into control
+(docs/closed_loop.md shows the measurements). This sampler spends each round's solves where the deployed controller
+looks:
+
+1. **Roll out the controller as deployed.** The current network drives a :class:`~seagul_control.LimitedLookaheadMPC`
+   of the deployed class, horizon and guard (``trust_region``) in closed loop, in the task's Gymnasium env, from
+   training starts drawn uniformly from X0 (a stream of their own, never the evaluation grid). During the first
+   ``warmup_rounds`` rounds the collector is the ``"lqr"``-guarded MPC instead: a fresh network's unguarded queries
+   go to states with values in the tens of thousands, which teach the regression little and swamp its loss
+   ("collect with a safer controller first, then with the learned one").
+2. **Collect the planner's queries**: every converged step whose terminal cost was the learned value contributes
+   its planned terminal state and time to go ``(x_n, tau_n)``.
+3. **Choose where the network is most likely wrong** among them (``selection``):
+
+   * ``"farthest"`` (default): greedy k-center in the network's standardised ``(x, tau)`` coordinates against
+     every input already in the training buffer: each pick is the query farthest from the data and from the
+     picks before it, so the round covers the part of the lookahead's reachable set the data are thinnest on
+     (where a smooth regressor extrapolates, and the planner exploits the extrapolation);
+   * ``"lowest"``: the queries whose value is lowest relative to the nearest training label's value minus the
+     network's — the planner's favourite under-estimates first (requires the buffer's labels);
+   * ``"random"``: a uniform subsample (the control).
+
+4. **Solve the tail problems** from the chosen queries: for a fixed-step task the tail of the full problem with
+   ``round(tau_n / h)`` intervals of the same step (:func:`seagul_learn.solving.tail_horizon`; one optimizer per
+   horizon, built once per process and kept). Each tail solve gives per-knot labels and dual gradients like any
+   other solve (Sobolev training applies unchanged); a failed tail solve is stored with its status, counted and
+   never trained on. Queries may be restricted to tails whose interval count is a multiple of ``tail_stride``
+   (fewer distinct solvers to build; the knots of each tail still cover every shorter time to go).
+
+``uniform_fraction`` of each round's solves are plain uniform draws from X0 at the nominal time to go (the
+baseline's starts), which keep the function right where the episodes begin.
+
+**Determinism and resume.** Episode starts come from ``np.random.default_rng([seed, stream, round])``; the MPC and
+the env are deterministic, so a round re-run after an interruption asks for the same tail problems, which the
+solve runner then reuses from disk bit for bit. The sampler's state (the round counter and the per-round log) is
+part of the training checkpoint.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import asdict, dataclass
+from typing import Any, Literal
+
+import numpy as np
+
+from seagul_envs import Task
+from seagul_learn.dataset import SolveRecord, TrainingArrays
+from seagul_learn.samplers import StartPool
+from seagul_learn.solving import SolveRunner, tail_horizon
+from seagul_learn.value_network import ValueNetwork
+
+Selection = Literal["farthest", "lowest", "random"]
+SELECTIONS = ("farthest", "lowest", "random")
+_STREAM_EPISODE_STARTS = 11
+_STREAM_SELECTION = 12
+
+
+@dataclass(frozen=True)
+class ClosedLoopOptions:
+    """Settings of :class:`ClosedLoopSampler` (module docstring)."""
+
+    episodes: int = 20
+    """Closed-loop episodes per round (starts drawn uniformly from X0, nominal time to go)."""
+    horizon: int | None = None
+    """Lookahead steps of the collecting MPC (None: the task's default, as deployed)."""
+    trust_region: str = "none"
+    """Guard of the collecting (= deployed) MPC after the warm-up rounds."""
+    warmup_rounds: int = 1
+    """Rounds at the start that collect with the ``"lqr"``-guarded MPC instead."""
+    selection: Selection = "farthest"
+    """How the round's queries are chosen among the collected ones."""
+    tail_stride: int = 1
+    """Only queries whose tail has a multiple of this many intervals (fixed-step tasks)."""
+    uniform_fraction: float = 0.0
+    """Share of each round's solves spent on uniform draws from X0 (the baseline's starts)."""
+    uniform_solves: int = 0
+    """Budget solves spent on uniform draws before the first closed-loop round (a network that has seen only the
+    pretraining solves plans into states with values of 1e4 and more, which teach nothing)."""
+    jit: bool = True
+    """Compile the collecting MPC (as deployed); False solves it interpreted (tests)."""
+
+    def __post_init__(self) -> None:
+        if self.episodes < 1:
+            raise ValueError(f"closed-loop episodes must be >= 1, got {self.episodes}")
+        if self.horizon is not None and self.horizon < 1:
+            raise ValueError(f"closed-loop horizon must be >= 1 step, got {self.horizon}")
+        if self.trust_region not in ("lqr", "box", "none"):
+            raise ValueError(f"closed-loop trust_region must be 'lqr', 'box' or 'none', got {self.trust_region!r}")
+        if self.warmup_rounds < 0:
+            raise ValueError(f"closed-loop warmup_rounds must be >= 0, got {self.warmup_rounds}")
+        if self.selection not in SELECTIONS:
+            raise ValueError(f"closed-loop selection must be one of {list(SELECTIONS)}, got {self.selection!r}")
+        if self.tail_stride < 1:
+            raise ValueError(f"closed-loop tail_stride must be >= 1, got {self.tail_stride}")
+        if not 0.0 <= self.uniform_fraction <= 1.0:
+            raise ValueError(f"closed-loop uniform_fraction must be in [0, 1], got {self.uniform_fraction}")
+        if self.uniform_solves < 0:
+            raise ValueError(f"closed-loop uniform_solves must be >= 0, got {self.uniform_solves}")
+
+
+@dataclass
+class Queries:
+    """Planned terminal states of closed-loop episodes and what the episodes did."""
+
+    x: np.ndarray
+    """``(q, nx)`` planned terminal states."""
+    tau: np.ndarray
+    """``(q,)`` their times to go (snapped to the task's step grid for fixed-step tasks)."""
+    episodes: int
+    """Episodes run."""
+    successes: int
+    """Episodes that reached the task's success set."""
+    fallback_steps: int
+    """Steps whose action did not come from a converged solve."""
+    steps: int
+    """Steps run."""
+
+
+def snap_tau(task: Task, tau: float) -> float:
+    """A fixed-step task's time to go rounded to its step grid (observations carry float32 times)."""
+    if not task.fixed_step:
+        return float(tau)
+    h = task.tau_nominal / task.num_steps
+    return float(round(tau / h) * h)
+
+
+def collect_queries(task: Task, policy: Any, starts: np.ndarray, env_id: str | None = None) -> Queries:
+    """Run ``policy`` (an MPC with ``stats``) from every start and gather its planned terminal states."""
+    from seagul_control.evaluation import run_policy_episode
+
+    xs: list[tuple[float, ...]] = []
+    taus: list[float] = []
+    successes = fallbacks = steps = 0
+    for x0 in np.atleast_2d(starts):
+        episode, infos = run_policy_episode(task, policy, x0, env_id=env_id)
+        successes += int(episode.success)
+        fallbacks += episode.fallbacks
+        steps += episode.steps
+        for info in infos:
+            if info.terminal_state is not None and math.isfinite(info.terminal_tau) and info.terminal_tau > 0:
+                xs.append(info.terminal_state)
+                taus.append(snap_tau(task, info.terminal_tau))
+    x = np.array(xs, dtype=np.float64).reshape(-1, task.nx)
+    return Queries(x, np.array(taus, dtype=np.float64), len(np.atleast_2d(starts)), successes, fallbacks, steps)
+
+
+def farthest_first(candidates: np.ndarray, known: np.ndarray, k: int) -> np.ndarray:
+    """Greedy k-center: indices of ``k`` rows of ``candidates``, each the farthest from ``known`` and the picks so far.
+
+    Distances are Euclidean in the given coordinates; ties go to the lowest index (deterministic).
+    """
+    from scipy.spatial import cKDTree
+
+    n = candidates.shape[0]
+    k = min(int(k), n)
+    if k <= 0:
+        return np.zeros(0, dtype=np.int64)
+    if known.shape[0]:
+        dist, _ = cKDTree(known).query(candidates, k=1)
+        dist = np.asarray(dist, dtype=np.float64)
+    else:
+        dist = np.full(n, np.inf)
+    picks = np.zeros(k, dtype=np.int64)
+    for j in range(k):
+        i = int(np.argmax(dist))
+        picks[j] = i
+        dist = np.minimum(dist, np.linalg.norm(candidates - candidates[i], axis=1))
+        dist[i] = -1.0
+    return picks
+
+
+class ClosedLoopSampler:
+    """Each round: roll out the deployed MPC, solve the tail problems at its most uncertain queries (module doc)."""
+
+    name = "closed-loop"
+
+    def __init__(self, task: Task, pool: StartPool, options: ClosedLoopOptions | None = None, seed: int = 0) -> None:
+        self.task = task
+        self.pool = pool
+        """Uniform starts of the ``uniform_fraction`` share (the baseline's, consumed in order)."""
+        self.options = options or ClosedLoopOptions()
+        self.seed = int(seed)
+        self.round = 0
+        self.loop_rounds = 0
+        """Rounds that ran the closed loop (the ``"lqr"`` warm-up counts these)."""
+        self.log: list[dict[str, Any]] = []
+        """One entry per round: collector, episodes, their success and fallbacks, queries, solves."""
+        self._mpcs: dict[str, Any] = {}
+        self._known_x = np.zeros((0, task.nx))
+        self._known_tau = np.zeros(0)
+        self._known_value = np.zeros(0)
+        if task.fixed_step:
+            self._check_tails()
+
+    def _check_tails(self) -> None:
+        # The MPC's queries are tails of the full problem (tail_horizon raises for anything else).
+        h = self.task.tau_nominal / self.task.num_steps
+        if abs(self.task.control_period - h) > 1e-9 and self.options.horizon is not None:
+            raise ValueError(
+                f"{self.task.name}: the closed-loop sampler needs the MPC step ({self.task.control_period} s) to "
+                f"equal the transcription step ({h} s) so that its planned terminal states are tails"
+            )
+
+    # --------------------------------------------------------------------------- state (resume)
+    def state_dict(self) -> dict[str, Any]:
+        """Resumable state (saved in the training checkpoint)."""
+        return {"round": self.round, "loop_rounds": self.loop_rounds, "log": list(self.log)}
+
+    def load_state_dict(self, state: dict[str, Any]) -> None:
+        """Restore :meth:`state_dict`."""
+        self.round = int(state["round"])
+        self.loop_rounds = int(state.get("loop_rounds", 0))
+        self.log = list(state["log"])
+
+    def observe(self, buffer: TrainingArrays) -> None:
+        """The training buffer after a round (the ``"farthest"``/``"lowest"`` selections measure against it)."""
+        self._known_x, self._known_tau, self._known_value = buffer.x, buffer.tau, buffer.value
+
+    # ------------------------------------------------------------------------------------ MPC
+    def collector(self, network: ValueNetwork) -> Any:
+        """The MPC that collects this round's queries (built once per guard, then only re-parameterised)."""
+        from seagul_control.evaluation import default_horizon
+        from seagul_control.mpc import LimitedLookaheadMPC
+
+        guard = "lqr" if self.loop_rounds < self.options.warmup_rounds else self.options.trust_region
+        horizon = self.options.horizon or default_horizon(self.task)
+        mpc = self._mpcs.get(guard)
+        if mpc is None:
+            mpc = LimitedLookaheadMPC(self.task, network, horizon, trust_region=guard, jit=self.options.jit)  # type: ignore[arg-type]
+            self._mpcs[guard] = mpc
+        else:
+            mpc.set_value_function(network)
+        return mpc
+
+    def episode_starts(self) -> np.ndarray:
+        """This round's training starts (uniform over X0; their own random stream)."""
+        rng = np.random.default_rng([self.seed, _STREAM_EPISODE_STARTS, self.round])
+        return self.task.sample_x0(rng, self.options.episodes)
+
+    # ------------------------------------------------------------------------------- selection
+    def _eligible(self, queries: Queries) -> np.ndarray:
+        keep = np.ones(queries.tau.shape[0], dtype=bool)
+        for i, tau in enumerate(queries.tau):
+            try:
+                k = tail_horizon(self.task, float(tau))
+            except ValueError:
+                keep[i] = False
+                continue
+            if k is not None and k % self.options.tail_stride:
+                keep[i] = False
+        keep &= np.all(np.isfinite(queries.x), axis=1)
+        return np.flatnonzero(keep)
+
+    def select(self, queries: Queries, network: ValueNetwork, k: int) -> np.ndarray:
+        """Indices of the ``k`` queries to solve (see ``selection``)."""
+        eligible = self._eligible(queries)
+        if eligible.size == 0 or k <= 0:
+            return np.zeros(0, dtype=np.int64)
+        mean = network.in_mean.detach().numpy()
+        std = network.in_std.detach().numpy()
+        cand = (np.column_stack([queries.x[eligible], queries.tau[eligible]]) - mean) / std
+        known = (np.column_stack([self._known_x, self._known_tau]) - mean) / std
+        method = self.options.selection
+        if method == "random":
+            rng = np.random.default_rng([self.seed, _STREAM_SELECTION, self.round])
+            picks = rng.permutation(eligible.size)[: min(k, eligible.size)]
+        elif method == "lowest" and known.shape[0]:
+            from scipy.spatial import cKDTree
+
+            _, nearest = cKDTree(known).query(cand, k=1)
+            vhat = network.predict(queries.x[eligible], queries.tau[eligible])
+            # How far below its nearest known label the network rates the query, farthest-first among ties.
+            gap = vhat - self._known_value[np.asarray(nearest)]
+            picks = np.argsort(gap, kind="stable")[: min(k, eligible.size)]
+        else:
+            picks = farthest_first(cand, known, k)
+        return eligible[np.sort(picks)]
+
+    # --------------------------------------------------------------------------------- sampling
+    def sample(self, num_solves: int, network: ValueNetwork, runner: SolveRunner) -> list[SolveRecord]:
+        """Exactly ``num_solves`` solves: uniform draws, then tail problems at the chosen queries.
+
+        If the episodes produce fewer eligible queries than needed (e.g. every step fell back), the rest of the
+        round's solves are uniform draws, so the budget is always spent exactly.
+        """
+        opts = self.options
+        records: list[SolveRecord] = []
+        # Uniform warm-up first (pool.position counts the uniform solves spent so far), then the mixed rounds.
+        warmup = min(num_solves, max(0, opts.uniform_solves - self.pool.position))
+        rest = num_solves - warmup
+        n_uniform = warmup + round(opts.uniform_fraction * rest) if rest else warmup
+        n_tail = num_solves - n_uniform
+        entry: dict[str, Any] = {"round": self.round}
+        if n_tail > 0:
+            mpc = self.collector(network)
+            entry["collector"] = mpc.trust_region
+            queries = collect_queries(self.task, mpc, self.episode_starts())
+            chosen = self.select(queries, network, n_tail)
+            entry.update(
+                episodes=queries.episodes,
+                episode_successes=queries.successes,
+                fallback_steps=queries.fallback_steps,
+                steps=queries.steps,
+                queries=int(queries.tau.shape[0]),
+                tails=int(chosen.size),
+            )
+            n_uniform += n_tail - int(chosen.size)
+            self.loop_rounds += 1
+            if chosen.size:
+                records += runner.solve(queries.x[chosen], queries.tau[chosen], self.name)
+        if n_uniform:
+            starts, taus, _ = self.pool.take(n_uniform)
+            records += runner.solve(starts, taus, "uniform-mix")
+        entry["uniform"] = int(n_uniform)
+        entry["failures"] = int(sum(not r.success for r in records))
+        self.log.append(entry)
+        self.round += 1
+        return records
+
+
+def options_dict(options: ClosedLoopOptions) -> dict[str, Any]:
+    """JSON-ready options."""
+    return asdict(options)
+
+
+# ------------------------------------------------------------------------------------------ planner-query error
+@dataclass
+class QueryError:
+    """``|Vhat - V|`` at a sample of a controller's planned terminal states, against re-solved tail values."""
+
+    median: float
+    """Median absolute error over the successful re-solves."""
+    p95: float
+    """95th percentile of the absolute error."""
+    mean_signed: float
+    """Mean of ``Vhat - V`` (negative: the network under-estimates where the planner looks)."""
+    sampled: int
+    """Queries re-solved."""
+    failed: int
+    """Re-solves that failed (no reference value there; reported, never averaged in)."""
+    available: int
+    """Queries the episodes produced."""
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain dict (JSON)."""
+        return asdict(self)
+
+
+def query_errors(
+    task: Task,
+    network: ValueNetwork,
+    queries: np.ndarray,
+    batch_solver: Any,
+    num: int = 50,
+    seed: int = 0,
+) -> QueryError:
+    """The planner-query error: re-solve ``num`` of ``queries`` (rows ``[*x_n, tau_n]``) and compare to ``Vhat``.
+
+    The sample is uniform over the queries with a fixed seed (every network's queries are sampled the same way);
+    times to go are snapped to the task's step grid and queries that are not tails of the full problem are skipped.
+    """
+    q = np.asarray(queries, dtype=np.float64).reshape(-1, task.nx + 1)
+    taus = np.array([snap_tau(task, t) for t in q[:, -1]])
+    ok = np.zeros(q.shape[0], dtype=bool)
+    for i, t in enumerate(taus):
+        try:
+            tail_horizon(task, float(t))
+            ok[i] = t > 0 and bool(np.all(np.isfinite(q[i])))
+        except ValueError:
+            ok[i] = False
+    idx = np.flatnonzero(ok)
+    rng = np.random.default_rng([int(seed), 13])
+    idx = np.sort(rng.permutation(idx)[: min(int(num), idx.size)])
+    if idx.size == 0:
+        return QueryError(float("nan"), float("nan"), float("nan"), 0, 0, int(q.shape[0]))
+    results = batch_solver(q[idx, : task.nx], taus[idx])
+    good = [(i, r) for i, r in zip(idx, results, strict=True) if r.success]
+    if not good:
+        return QueryError(float("nan"), float("nan"), float("nan"), int(idx.size), int(idx.size), int(q.shape[0]))
+    xs = np.array([q[i, : task.nx] for i, _ in good])
+    ts = np.array([taus[i] for i, _ in good])
+    signed = network.predict(xs, ts) - np.array([r.value for _, r in good])
+    err = np.abs(signed)
+    return QueryError(
+        float(np.median(err)),
+        float(np.percentile(err, 95)),
+        float(np.mean(signed)),
+        int(idx.size),
+        int(idx.size - len(good)),
+        int(q.shape[0]),
+    )

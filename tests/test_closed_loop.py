@@ -1,0 +1,166 @@
+"""The closed-loop sampler: queries come from the deployed MPC, tails are solved, budgets exact, resume exact."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from toy_problem import ToySolver
+
+from seagul_control.mpc import LimitedLookaheadMPC
+from seagul_envs import make_task
+from seagul_learn.closed_loop import ClosedLoopOptions, collect_queries, farthest_first, snap_tau
+from seagul_learn.solving import tail_horizon
+from seagul_learn.training import TrainConfig, train
+from seagul_learn.value_network import ValueNetwork
+
+
+def test_tail_horizon_of_fixed_step_task():
+    task = make_task("acrobot")
+    assert tail_horizon(task, 5.0) is None  # the full problem
+    assert tail_horizon(task, 4.5) == 45
+    assert tail_horizon(task, 0.1) == 1
+    with pytest.raises(ValueError, match="not a tail"):
+        tail_horizon(task, 0.05)
+    with pytest.raises(ValueError, match="not a tail"):
+        tail_horizon(task, 7.0)
+    glider = make_task("glider")
+    assert tail_horizon(glider, glider.tau_nominal) is None
+    with pytest.raises(ValueError, match="free-time"):
+        tail_horizon(glider, 0.1)
+
+
+def test_snap_tau_rounds_float32_times_to_the_step_grid():
+    task = make_task("acrobot")
+    assert snap_tau(task, float(np.float32(4.5) - np.float32(0.5))) == pytest.approx(4.0, abs=0)
+    assert tail_horizon(task, snap_tau(task, 1.2000001)) == 12
+
+
+def test_farthest_first_is_greedy_k_center():
+    known = np.zeros((1, 2))
+    cand = np.array([[0.1, 0.0], [5.0, 0.0], [5.1, 0.0], [0.0, 3.0]])
+    picks = farthest_first(cand, known, 3)
+    # farthest from the origin first, then the point farthest from {origin, pick 1}, ...
+    assert picks.tolist() == [2, 3, 0] or picks.tolist() == [2, 3, 1]
+    assert picks[0] == 2 and picks[1] == 3
+    assert farthest_first(cand, np.zeros((0, 2)), 2).size == 2
+    assert farthest_first(cand, known, 0).size == 0
+
+
+def test_options_reject_bad_values():
+    with pytest.raises(ValueError, match="episodes"):
+        ClosedLoopOptions(episodes=0)
+    with pytest.raises(ValueError, match="selection"):
+        ClosedLoopOptions(selection="best")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="trust_region"):
+        ClosedLoopOptions(trust_region="wall")
+    with pytest.raises(ValueError, match="tail_stride"):
+        TrainConfig(sampler="closed-loop", cl_tail_stride=0)
+    with pytest.raises(ValueError, match="value_cap"):
+        TrainConfig(value_cap=-1.0)
+
+
+def _net(task, seed=0):
+    net = ValueNetwork(task.nx, (8,), task_name=task.name, seed=seed)
+    rng = np.random.default_rng(0)
+    x = task.sample_x0(rng, 50)
+    net.set_normalization(x, rng.uniform(0, 5, 50), rng.uniform(0, 50, 50))
+    return net
+
+
+def test_collect_queries_are_the_planned_terminal_states():
+    task = make_task("acrobot")
+    net = _net(task)
+    mpc = LimitedLookaheadMPC(task, net, 3, trust_region="none", jit=False)
+    starts = task.sample_x0(np.random.default_rng(1), 1)
+    q = collect_queries(task, mpc, starts)
+    assert q.episodes == 1 and q.steps == 50
+    assert q.x.shape[1] == task.nx and q.x.shape[0] == q.tau.shape[0] > 0
+    # the learned terminal cost is used while tau_now > 3 dt: queries at tau = 5 - 0.3, 4.9 - 0.3, ...
+    assert q.tau.max() == pytest.approx(4.7)
+    assert np.all(q.tau > 0)
+    for t in q.tau:
+        assert tail_horizon(task, float(t)) is not None
+    # the first query is the first step's planned x_3 from the start (re-solve and compare)
+    mpc.reset()
+    obs = np.append(starts[0], task.tau_nominal).astype(np.float32)
+    mpc.predict(obs, episode_start=np.array([True]))
+    np.testing.assert_allclose(q.x[0], mpc.last_info[0].terminal_state, atol=1e-6)
+
+
+def _cl_config(tmp_path, **overrides) -> TrainConfig:
+    base = dict(
+        task="acrobot",
+        sampler="closed-loop",
+        budget=18,
+        solves_per_round=6,
+        train_steps_per_round=10,
+        batch_size=32,
+        pretrain_solves=4,
+        pretrain_steps=10,
+        hidden=(8,),
+        cl_episodes=1,
+        cl_horizon=2,
+        cl_jit=False,
+        cl_uniform_fraction=0.34,
+        cl_uniform_solves=6,
+        cl_warmup_rounds=1,
+        seed=0,
+        cache_dir=str(tmp_path / "cache"),
+        progress=False,
+        validate=False,
+    )
+    base.update(overrides)
+    return TrainConfig(**base)
+
+
+@pytest.fixture(scope="module")
+def closed_loop_run(tmp_path_factory):
+    tmp = tmp_path_factory.mktemp("cl")
+    toy = ToySolver(make_task("acrobot"))
+    result = train(_cl_config(tmp, snapshots=(6,)), tmp / "run", batch_solver=toy, solver_name="toy")
+    return tmp, toy, result
+
+
+def test_closed_loop_training_spends_the_budget_on_tail_queries(closed_loop_run):
+    tmp, _toy, result = closed_loop_run
+    records = result.dataset.records()
+    budget = [r for r in records if r.sampler != "pretrain"]
+    assert len(budget) == 18 == result.num_solves
+    # round 0: the uniform warm-up (6 solves); rounds 1-2: 2 uniform + 4 tails each
+    assert [r.sampler for r in budget[:6]] == ["uniform-mix"] * 6
+    tails = [r for r in budget if r.sampler == "closed-loop"]
+    uniform = [r for r in budget if r.sampler == "uniform-mix"]
+    assert len(uniform) == 6 + 2 * round(0.34 * 6) and len(tails) == 18 - len(uniform)
+    # every tail request is a tail of the full problem from an MPC query (tau below the full 5 s)
+    assert all(0 < r.tau < 5.0 and tail_horizon(make_task("acrobot"), r.tau) for r in tails)
+    metrics = json.loads((tmp / "run" / "metrics.json").read_text())
+    log = metrics["sampler_log"]
+    assert "collector" not in log[0]  # the uniform warm-up round runs no episodes
+    assert [e["collector"] for e in log[1:]] == ["lqr", "none"]  # first loop round with the guarded MPC
+    assert all(e["episodes"] == 1 and e["queries"] >= e["tails"] for e in log[1:])
+    assert (tmp / "run" / "network_6.pt").is_file()
+
+
+def test_closed_loop_training_resumes_exactly(closed_loop_run, tmp_path):
+    _, _, full = closed_loop_run
+
+    class Interrupt(ToySolver):
+        def __call__(self, starts, taus):
+            if self.num_solves >= 15:
+                raise KeyboardInterrupt
+            return super().__call__(starts, taus)
+
+    task = make_task("acrobot")
+    with pytest.raises(KeyboardInterrupt):
+        train(_cl_config(tmp_path, snapshots=(6,)), tmp_path / "run", batch_solver=Interrupt(task), solver_name="toy")
+    toy = ToySolver(task)
+    resumed = train(
+        _cl_config(tmp_path, snapshots=(6,)), tmp_path / "run", resume=True, batch_solver=toy, solver_name="toy"
+    )
+    assert toy.num_solves < 18  # stored records were reused
+    np.testing.assert_array_equal(resumed.network.casadi_parameters(), full.network.casadi_parameters())
+    a = [(r.sampler, r.x_init.tolist(), r.tau) for r in resumed.dataset.records()]
+    b = [(r.sampler, r.x_init.tolist(), r.tau) for r in full.dataset.records()]
+    assert a == b
