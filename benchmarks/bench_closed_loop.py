@@ -57,7 +57,7 @@ METHODS: dict[str, dict[str, Any]] = {
     "adversarial": {"sampler": "adversarial"},
     "uniform+sobolev": {"sampler": "uniform", "sobolev_weight": 1.0},
     "adversarial+sobolev": {"sampler": "adversarial", "sobolev_weight": 1.0},
-    "closed-loop+sobolev": {"sampler": "closed-loop", "sobolev_weight": 1.0},
+    "closed-loop+sobolev": {"sampler": "closed-loop", "sobolev_weight": 1.0, "cl_tail_stride": 5, "value_cap": 300.0},
 }
 SHIPPED = "closed-loop+sobolev"
 
@@ -97,7 +97,7 @@ class BenchConfig:
                 heldout=4,
                 query_sample=6,
                 methods=("uniform+sobolev", SHIPPED),
-                train={**common, "train_steps_per_round": 100, "cl_episodes": 4},
+                train={**common, "train_steps_per_round": 100, "cl_episodes": 4, "cl_uniform_solves": 25},
             )
         return cls(task=task, train=common)
 

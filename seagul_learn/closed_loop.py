@@ -20,6 +20,8 @@ looks:
      every input already in the training buffer: each pick is the query farthest from the data and from the
      picks before it, so the round covers the part of the lookahead's reachable set the data are thinnest on
      (where a smooth regressor extrapolates, and the planner exploits the extrapolation);
+   * ``"spread"``: with a :class:`~seagul_learn.value_network.ValueEnsemble`, the queries where the members
+     disagree most (farthest-first among equal spreads);
    * ``"lowest"``: the queries whose value is lowest relative to the nearest training label's value minus the
      network's — the planner's favourite under-estimates first (requires the buffer's labels);
    * ``"random"``: a uniform subsample (the control).
@@ -54,8 +56,8 @@ from seagul_learn.samplers import StartPool
 from seagul_learn.solving import SolveRunner, tail_horizon
 from seagul_learn.value_network import ValueNetwork
 
-Selection = Literal["farthest", "lowest", "random"]
-SELECTIONS = ("farthest", "lowest", "random")
+Selection = Literal["farthest", "spread", "lowest", "random"]
+SELECTIONS = ("farthest", "spread", "lowest", "random")
 _STREAM_EPISODE_STARTS = 11
 _STREAM_SELECTION = 12
 
@@ -269,6 +271,9 @@ class ClosedLoopSampler:
         if method == "random":
             rng = np.random.default_rng([self.seed, _STREAM_SELECTION, self.round])
             picks = rng.permutation(eligible.size)[: min(k, eligible.size)]
+        elif method == "spread" and hasattr(network, "spread"):
+            spread = network.spread(queries.x[eligible], queries.tau[eligible])  # type: ignore[attr-defined]
+            picks = np.argsort(-spread, kind="stable")[: min(k, eligible.size)]
         elif method == "lowest" and known.shape[0]:
             from scipy.spatial import cKDTree
 

@@ -29,28 +29,38 @@ BatchSolver = Callable[[np.ndarray, np.ndarray], list[SolveResult]]
 """``(starts (n, nx), taus (n,)) -> list[SolveResult]`` in input order; never raises for an infeasible start."""
 
 
+TAIL_SOLVER_DEFAULTS: dict[str, Any] = {"multi_start": "never", "max_iter": 150}
+"""Optimizer options of tail problems unless the caller sets them. Tails from the MPC's planned terminal states are
+far off the data: 1-2 s per solve with the multi-start's extra attempts (half without), and a fallback IPOPT attempt
+at 500 iterations once took minutes. No multi-start (a poor local optimum only *over*-estimates ``V`` there, the
+direction that keeps the planner away) and at most 150 iterations per attempt (a failed tail is recorded, counted
+and never trained on)."""
+
+
 def tail_horizon(task: Task, tau: float) -> int | None:
     """Intervals of the tail problem from time to go ``tau``, or None when ``tau`` is a full-horizon time to go.
 
-    A fixed-step task's full problem has ``m`` intervals of ``h = tau_nominal / m``; a state reached with less time to
-    go (the MPC's planned terminal state, a mid-trajectory knot) is the start of the tail problem with
-    ``round(tau / h)`` intervals of the same ``h`` (Bellman's principle: its optimal cost is ``V(x, tau)``).
-    Free-time tasks solve every ``tau`` in T0 with their ``m`` free steps; below T0 they have no tail problem.
+    The full problem has ``m`` intervals for ``tau`` in T0 (nominal step ``h = tau_nominal / m``). A state reached
+    with less time to go (the MPC's planned terminal state, a mid-trajectory knot) starts the *tail* problem with
+    ``k = round(tau / h)`` intervals (Bellman's principle: its optimal cost is ``V(x, tau)``): of exactly ``h`` for a
+    fixed-step task, free steps in the task's step bounds with ``sum(h_k) = tau`` for a free-time task.
 
     Raises:
-        ValueError: ``tau`` is not a multiple of the step (fixed-step tasks) or lies outside the solvable range.
+        ValueError: ``tau`` is above T0, not a multiple of the step (fixed-step tasks), or not reachable with ``k``
+            steps inside the step bounds (free-time tasks).
     """
     lo, hi = task.tau_range
     if lo - 1e-9 <= tau <= hi + 1e-9:
         return None
-    if not task.fixed_step:
-        raise ValueError(f"{task.name}: time to go {tau} outside T0 = [{lo}, {hi}] s (free-time tasks have no tail)")
     h = task.tau_nominal / task.num_steps
     k = round(tau / h)
-    if not (1 <= k < task.num_steps) or abs(k * h - tau) > 1e-6:
-        raise ValueError(
-            f"{task.name}: time to go {tau} s is not a tail of the full problem (a multiple of {h} s below {hi} s)"
-        )
+    if not (1 <= k < task.num_steps) or tau > hi:
+        raise ValueError(f"{task.name}: time to go {tau} s is not a tail of the full problem (0 < tau < {lo} s)")
+    if task.fixed_step and abs(k * h - tau) > 1e-6:
+        raise ValueError(f"{task.name}: time to go {tau} s is not a tail of the full problem (a multiple of {h} s)")
+    step_lo, step_hi = task.step_bounds
+    if not task.fixed_step and not (k * step_lo - 1e-9 <= tau <= k * step_hi + 1e-9):
+        raise ValueError(f"{task.name}: time to go {tau} s is not reachable with {k} steps in {task.step_bounds} s")
     return int(k)
 
 
@@ -82,7 +92,7 @@ def trajopt_batch_solver(
             idx = [i for i, h in enumerate(horizons) if h == k]
             options = dict(solver_options or {})
             if k is not None:
-                options["horizon"] = k
+                options = {**TAIL_SOLVER_DEFAULTS, **options, "horizon": k}
             results = solve_many(
                 task_name,
                 starts[idx],

@@ -74,7 +74,7 @@ from seagul_learn.dataset import (
 )
 from seagul_learn.samplers import AdversarialOptions, AdversarialSampler, Sampler, StartPool, UniformSampler
 from seagul_learn.solving import BatchSolver, SolveRunner, solver_key, trajopt_batch_solver
-from seagul_learn.value_network import ValueNetwork
+from seagul_learn.value_network import ValueEnsemble, ValueNetwork
 
 SAMPLERS = ("uniform", "adversarial", "closed-loop")
 CHECKPOINT_FORMAT = "seagul-train-checkpoint"
@@ -113,6 +113,11 @@ class TrainConfig:
     """Weight ``w`` of the gradient-matching term (0 = plain MSE)."""
     hidden: tuple[int, ...] = (32,)
     """Hidden-layer widths of the tanh network."""
+    ensemble: int = 1
+    """Networks fitted to the same data (1 = a single network; >= 2 a :class:`ValueEnsemble`, whose CasADi form is
+    pessimistic where the members disagree)."""
+    ensemble_pessimism: float = 1.0
+    """Weight ``beta`` of the members' spread in the ensemble's CasADi form (``mean + beta * spread``)."""
     pretrain_solves: int = 10
     """Uniform solves of the shared pretraining set (also the standardisation statistics)."""
     pretrain_steps: int = 100
@@ -205,6 +210,10 @@ class TrainConfig:
             raise ValueError(f"sobolev_weight must be >= 0, got {self.sobolev_weight}")
         if self.backend not in ("local", "ray"):
             raise ValueError(f"unknown backend {self.backend!r}; choose 'local' or 'ray'")
+        if self.ensemble < 1:
+            raise ValueError(f"ensemble must be >= 1 network, got {self.ensemble}")
+        if not (self.ensemble_pessimism >= 0 and math.isfinite(self.ensemble_pessimism)):
+            raise ValueError(f"ensemble_pessimism must be a number >= 0, got {self.ensemble_pessimism}")
         if not self.hidden or any(h < 1 for h in self.hidden):
             raise ValueError(f"hidden must be positive layer widths, got {self.hidden}")
         self.adversarial_options()  # validates the adv_* fields
@@ -449,16 +458,36 @@ class _Trainer:
             return
         data = _as_tensors(buffer, self.config.value_cap)
         fraction = self.config.newest_fraction
+        members = _members(self.network)
         for _ in range(steps):
-            batch = _minibatch(data, newest, self.config.batch_size, fraction, rng)
             self.optimizer.zero_grad(set_to_none=True)
-            loss = training_loss(self.network, batch, self.config.sobolev_weight)
-            loss.backward()
+            # Each member of an ensemble gets its own minibatch (drawn in order from the one stream).
+            loss = sum(
+                training_loss(
+                    m, _minibatch(data, newest, self.config.batch_size, fraction, rng), self.config.sobolev_weight
+                )
+                for m in members
+            )
+            loss.backward()  # type: ignore[union-attr]
             self.optimizer.step()
             if count_steps:
                 self.train_steps += 1
                 if on_eval is not None and self.config.eval_every and self.train_steps % self.config.eval_every == 0:
                     on_eval()
+
+
+def _members(network: ValueNetwork | ValueEnsemble) -> list[ValueNetwork]:
+    """The networks an optimizer step trains (one, or every member of an ensemble)."""
+    return list(network.members) if isinstance(network, ValueEnsemble) else [network]  # type: ignore[arg-type]
+
+
+def make_network(config: TrainConfig, task: Task) -> ValueNetwork | ValueEnsemble:
+    """The run's (untrained) value function: a network, or an ensemble when ``config.ensemble >= 2``."""
+    if config.ensemble >= 2:
+        return ValueEnsemble(
+            task.nx, config.hidden, config.ensemble, config.ensemble_pessimism, task_name=task.name, seed=config.seed
+        )
+    return ValueNetwork(task.nx, config.hidden, task_name=task.name, seed=config.seed)
 
 
 def _concat(a: TrainingArrays, b: TrainingArrays) -> TrainingArrays:
@@ -555,7 +584,7 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
     dataset = Dataset.open(out / "dataset", task.name, meta={"solver": solver_name, "seed": config.seed})
     runner = SolveRunner(batch_solver, dataset, next_index=0, chunk_size=chunk)
     sampler = _make_sampler(config, task)
-    network = ValueNetwork(task.nx, config.hidden, task_name=task.name, seed=config.seed)
+    network = make_network(config, task)
     trainer = _Trainer(config, network, validation)
     checkpoint_path = out / "checkpoint.pt"
 

@@ -33,6 +33,7 @@ from torch import nn
 from seagul_learn.dataset import atomic_write_bytes
 
 FORMAT_TAG = "seagul-value-network"
+ENSEMBLE_FORMAT_TAG = "seagul-value-ensemble"
 FORMAT_VERSION = 1
 DTYPE = torch.float64
 _MIN_STD = 1e-8
@@ -185,7 +186,8 @@ class ValueNetwork(nn.Module):
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> ValueNetwork:
-        """Read a file written by :meth:`save`; raises :class:`ValueNetworkFileError` naming the file and problem."""
+        """Read a file written by :meth:`save` (or :meth:`ValueEnsemble.save`, which returns the ensemble); raises
+        :class:`ValueNetworkFileError` naming the file and problem."""
         path = Path(path)
         if path.is_dir():
             raise ValueNetworkFileError(f"{str(path)!r} is a directory, not a value network file")
@@ -197,6 +199,8 @@ class ValueNetwork(nn.Module):
             raise ValueNetworkFileError(
                 f"value network file {str(path)!r} is unreadable or corrupt ({type(exc).__name__}: {exc})"
             ) from exc
+        if isinstance(payload, dict) and payload.get("format") == ENSEMBLE_FORMAT_TAG:
+            return ValueEnsemble._from_payload(payload, path)  # type: ignore[return-value]
         if not isinstance(payload, dict) or payload.get("format") != FORMAT_TAG:
             raise ValueNetworkFileError(f"{str(path)!r} is not a seagul value network file (no {FORMAT_TAG!r} tag)")
         if payload.get("version") != FORMAT_VERSION:
@@ -218,6 +222,151 @@ class ValueNetwork(nn.Module):
         return f"task={self.task_name!r}, config={asdict(self.config)}"
 
 
+class ValueEnsemble(nn.Module):
+    """``K`` value networks fitted to the same data; the MPC sees a *pessimistic* value where they disagree.
+
+    ``predict``/``value_and_grad`` (training metrics, samplers) use the ensemble mean ``m(x, tau)``. The CasADi form
+    the MPC optimises is ``m + beta * s`` with ``s = sqrt(mean_k (V_k - m)^2 + eps^2) - eps`` the (smoothed) spread
+    over members and ``beta = pessimism`` an NLP parameter (the last entry of ``theta``). The members agree where
+    the data are dense and disagree where a network extrapolates, which is where the MPC's optimizer finds
+    under-estimates (docs/closed_loop.md); the spread term makes those states expensive instead of attractive.
+    Members differ in their initial weights (and, in training, their minibatches).
+    """
+
+    #: Smoothing of the spread (value units): keeps ``sqrt`` differentiable where all members agree.
+    SPREAD_EPS = 1e-3
+
+    def __init__(
+        self,
+        nx: int,
+        hidden: Sequence[int] = (32,),
+        members: int = 5,
+        pessimism: float = 1.0,
+        task_name: str = "",
+        seed: int | None = None,
+    ) -> None:
+        super().__init__()
+        if int(members) < 2:
+            raise ValueError(f"an ensemble needs >= 2 members, got {members}")
+        if not (np.isfinite(pessimism) and pessimism >= 0):
+            raise ValueError(f"pessimism must be a finite number >= 0, got {pessimism}")
+        base = 0 if seed is None else int(seed)
+        self.members = nn.ModuleList(
+            ValueNetwork(nx, hidden, task_name=task_name, seed=None if seed is None else 1000 * base + k)
+            for k in range(int(members))
+        )
+        self.pessimism = float(pessimism)
+        self.task_name = str(task_name)
+        self.config = self.members[0].config
+
+    @property
+    def nx(self) -> int:
+        """State dimension."""
+        return self.config.nx
+
+    @property
+    def in_mean(self) -> torch.Tensor:
+        """Input standardisation (shared by the members)."""
+        return self.members[0].in_mean
+
+    @property
+    def in_std(self) -> torch.Tensor:
+        """Input standardisation scale (shared by the members)."""
+        return self.members[0].in_std
+
+    def set_normalization(self, x: np.ndarray, tau: np.ndarray, value: np.ndarray) -> None:
+        """The same standardisation for every member."""
+        for m in self.members:
+            m.set_normalization(x, tau, value)
+
+    def forward(self, x: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+        """The ensemble mean."""
+        return torch.stack([m(x, tau) for m in self.members]).mean(dim=0)
+
+    def spread(self, x: Any, tau: Any) -> np.ndarray:
+        """Standard deviation over members at a batch (NumPy)."""
+        with torch.no_grad():
+            x_t = torch.as_tensor(np.atleast_2d(np.asarray(x, dtype=np.float64)))
+            t_t = torch.tensor(np.broadcast_to(np.asarray(tau, dtype=np.float64).reshape(-1), (x_t.shape[0],)).copy())
+            values = torch.stack([m(x_t, t_t.clone()) for m in self.members])
+            return values.std(dim=0, unbiased=False).numpy()
+
+    value_and_grad = ValueNetwork.value_and_grad
+    predict = ValueNetwork.predict
+
+    # ----------------------------------------------------------------- casadi
+    def casadi_parameters(self) -> np.ndarray:
+        """``theta``: every member's parameters in order, then ``pessimism``."""
+        return np.concatenate([*(m.casadi_parameters() for m in self.members), [self.pessimism]])
+
+    def casadi_function(self) -> ca.Function:
+        """CasADi ``(x, tau, theta) -> mean + pessimism * spread``; depends only on the architecture and ``K``."""
+        key = (self.nx, self.config.hidden, len(self.members))
+        if key not in _ENSEMBLE_CACHE:
+            one = _casadi_network(self.nx, self.config.hidden)
+            n = int(one.nnz_in(2))
+            k = len(self.members)
+            x, tau = ca.SX.sym("x", self.nx), ca.SX.sym("tau", 1)
+            theta = ca.SX.sym("theta", k * n + 1)
+            values = [one(x, tau, theta[i * n : (i + 1) * n]) for i in range(k)]
+            mean = sum(values) / k
+            var = sum((v - mean) ** 2 for v in values) / k
+            eps = self.SPREAD_EPS
+            value = mean + theta[k * n] * (ca.sqrt(var + eps**2) - eps)
+            _ENSEMBLE_CACHE[key] = ca.Function(
+                "value_ensemble_theta", [x, tau, theta], [value], ["x", "tau", "theta"], ["V"]
+            )
+        return _ENSEMBLE_CACHE[key]
+
+    # -------------------------------------------------------------------- i/o
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the ensemble to ``path`` atomically; :meth:`ValueNetwork.load` reads it back."""
+        path = Path(path)
+        payload = {
+            "format": ENSEMBLE_FORMAT_TAG,
+            "version": FORMAT_VERSION,
+            "task_name": self.task_name,
+            "config": {
+                "nx": self.config.nx,
+                "hidden": list(self.config.hidden),
+                "members": len(self.members),
+                "pessimism": self.pessimism,
+            },
+            "state_dict": {k: v.detach().clone() for k, v in self.state_dict().items()},
+        }
+        buffer = io.BytesIO()
+        torch.save(payload, buffer)
+        atomic_write_bytes(path, buffer.getvalue())
+        return path
+
+    @classmethod
+    def _from_payload(cls, payload: dict[str, Any], path: Path) -> ValueEnsemble:
+        if payload.get("version") != FORMAT_VERSION:
+            raise ValueNetworkFileError(
+                f"{str(path)!r} has value-network format version {payload.get('version')!r}; "
+                f"this seagul reads version {FORMAT_VERSION}"
+            )
+        try:
+            c = payload["config"]
+            ens = cls(
+                int(c["nx"]),
+                tuple(c["hidden"]),
+                int(c["members"]),
+                float(c["pessimism"]),
+                task_name=str(payload["task_name"]),
+            )
+            ens.load_state_dict(payload["state_dict"])
+        except Exception as exc:
+            raise ValueNetworkFileError(
+                f"value ensemble file {str(path)!r} is inconsistent ({type(exc).__name__}: {exc})"
+            ) from exc
+        return ens
+
+    def extra_repr(self) -> str:
+        return f"task={self.task_name!r}, members={len(self.members)}, pessimism={self.pessimism}"
+
+
+_ENSEMBLE_CACHE: dict[tuple[int, tuple[int, ...], int], ca.Function] = {}
 _CASADI_CACHE: dict[tuple[int, tuple[int, ...]], ca.Function] = {}
 
 

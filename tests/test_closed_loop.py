@@ -25,10 +25,11 @@ def test_tail_horizon_of_fixed_step_task():
         tail_horizon(task, 0.05)
     with pytest.raises(ValueError, match="not a tail"):
         tail_horizon(task, 7.0)
-    glider = make_task("glider")
+    glider = make_task("glider")  # free steps: k = round(tau / 20 ms) steps in [15, 30] ms with sum(h) = tau
     assert tail_horizon(glider, glider.tau_nominal) is None
-    with pytest.raises(ValueError, match="free-time"):
-        tail_horizon(glider, 0.1)
+    assert tail_horizon(glider, 0.55) == round(0.55 / 0.02)
+    with pytest.raises(ValueError, match="not a tail"):
+        tail_horizon(glider, 0.001)
 
 
 def test_snap_tau_rounds_float32_times_to_the_step_grid():

@@ -73,6 +73,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--newest-fraction", type=fraction, default=d.newest_fraction)
     parser.add_argument("--lr", type=positive_float, default=d.lr)
     parser.add_argument("--hidden", type=hidden_widths, default=d.hidden, help="hidden widths, e.g. 32 or 64,32")
+    parser.add_argument("--ensemble", type=positive_int, default=d.ensemble, help="networks (>= 2: an ensemble)")
+    parser.add_argument("--ensemble-pessimism", type=non_negative_float, default=d.ensemble_pessimism)
     parser.add_argument("--pretrain-solves", type=positive_int, default=d.pretrain_solves)
     parser.add_argument("--pretrain-steps", type=non_negative_int, default=d.pretrain_steps)
     parser.add_argument("--adv-max-steps", type=positive_int, default=d.adv_max_steps)
@@ -88,7 +90,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--cl-horizon", type=non_negative_int, default=d.cl_horizon, help="0 = the task's default")
     parser.add_argument("--cl-trust-region", choices=("none", "lqr", "box"), default=d.cl_trust_region)
     parser.add_argument("--cl-warmup-rounds", type=non_negative_int, default=d.cl_warmup_rounds)
-    parser.add_argument("--cl-selection", choices=("farthest", "lowest", "random"), default=d.cl_selection)
+    parser.add_argument("--cl-selection", choices=("farthest", "spread", "lowest", "random"), default=d.cl_selection)
     parser.add_argument("--cl-tail-stride", type=positive_int, default=d.cl_tail_stride)
     parser.add_argument("--cl-uniform-fraction", type=fraction, default=d.cl_uniform_fraction)
     parser.add_argument("--cl-uniform-solves", type=non_negative_int, default=d.cl_uniform_solves)
@@ -119,6 +121,8 @@ def config_from_args(args: argparse.Namespace) -> Any:
         lr=args.lr,
         sobolev_weight=args.sobolev,
         hidden=args.hidden,
+        ensemble=args.ensemble,
+        ensemble_pessimism=args.ensemble_pessimism,
         pretrain_solves=args.pretrain_solves,
         pretrain_steps=args.pretrain_steps,
         seed=args.seed,
