@@ -57,7 +57,12 @@ METHODS: dict[str, dict[str, Any]] = {
     "adversarial": {"sampler": "adversarial"},
     "uniform+sobolev": {"sampler": "uniform", "sobolev_weight": 1.0},
     "adversarial+sobolev": {"sampler": "adversarial", "sobolev_weight": 1.0},
-    "closed-loop+sobolev": {"sampler": "closed-loop", "sobolev_weight": 1.0, "cl_tail_stride": 5, "value_cap": 300.0},
+    "closed-loop+sobolev": {
+        "sampler": "closed-loop",
+        "sobolev_weight": 1.0,
+        "cl_uniform_solves": 100,
+        "value_cap": 300.0,
+    },
 }
 SHIPPED = "closed-loop+sobolev"
 
@@ -67,16 +72,18 @@ class BenchConfig:
     """Every number of one benchmark run (``--quick`` replaces some of them)."""
 
     task: str = "acrobot"
-    budgets: tuple[int, ...] = (100, 300, 1000, 2000)
+    budgets: tuple[int, ...] = (100, 300)
     seeds: int = 5
     grid: int = 20
     heldout: int = 100
     query_sample: int = 30
     horizon: int = 5
-    trust_region: str = "none"
+    trust_region: str = "lqr"
     methods: tuple[str, ...] = tuple(METHODS)
     train: dict[str, Any] = field(default_factory=dict)
     """TrainConfig fields shared by every method."""
+    method_overrides: dict[str, dict[str, Any]] = field(default_factory=dict)
+    """Per-method TrainConfig fields of this run on top of :data:`METHODS`."""
 
     @classmethod
     def for_task(cls, task: str, quick: bool) -> BenchConfig:
@@ -97,7 +104,8 @@ class BenchConfig:
                 heldout=4,
                 query_sample=6,
                 methods=("uniform+sobolev", SHIPPED),
-                train={**common, "train_steps_per_round": 100, "cl_episodes": 4, "cl_uniform_solves": 25},
+                train={**common, "train_steps_per_round": 100, "cl_episodes": 4},
+                method_overrides={SHIPPED: {"cl_uniform_solves": 25}},
             )
         return cls(task=task, train=common)
 
@@ -122,8 +130,11 @@ def train_all(bench: BenchConfig, out: Path, workers: int) -> dict[tuple[str, in
         for seed in range(bench.seeds):
             cfg = {
                 "task": bench.task,
+                # The closed-loop sampler collects with the controller as it is deployed (same guard).
+                "cl_trust_region": bench.trust_region,
                 **bench.train,
                 **METHODS[method],
+                **bench.method_overrides.get(method, {}),
                 "budget": max(bench.budgets),
                 "snapshots": tuple(bench.budgets),
                 "seed": seed,
@@ -169,7 +180,7 @@ def heldout_starts(task_name: str, n: int) -> np.ndarray:
 
 
 def evaluate_network(
-    bench: BenchConfig, path: Path, starts: np.ndarray, n_grid: int, workers: int, out: Path
+    bench: BenchConfig, path: Path, starts: np.ndarray, n_grid: int, workers: int, out: Path, query_sample: int
 ) -> dict[str, Any]:
     """Closed loop of one snapshot on grid + held-out starts, with its planner-query error (cached as JSON)."""
     if out.is_file():
@@ -188,7 +199,7 @@ def evaluate_network(
     grid, held = results[:n_grid], results[n_grid:]
     queries = np.array([q for r in results for q in r.queries]).reshape(-1, make_task(bench.task).nx + 1)
     solver = trajopt_batch_solver(bench.task, workers=workers)
-    qe = query_errors(make_task(bench.task), ValueNetwork.load(path), queries, solver, bench.query_sample)
+    qe = query_errors(make_task(bench.task), ValueNetwork.load(path), queries, solver, query_sample)
     times = np.array([t for r in results for t in r.solve_times])
     row = {
         "success_rate": float(np.mean([r.success for r in grid])),
@@ -325,8 +336,10 @@ def run_task(bench: BenchConfig, out: Path, workers: int, ship_dir: Path | None)
     for (method, seed), run in sorted(runs.items()):
         for budget in bench.budgets:
             path = snapshot_path(run, budget, final)
+            # The planner-query error (tail re-solves, the slow part) at the final budget of every seed.
+            sample = bench.query_sample if budget == final else 0
             row = evaluate_network(
-                bench, path, starts, n_grid, workers, out / "eval" / f"{method}-seed{seed}-b{budget}.json"
+                bench, path, starts, n_grid, workers, out / "eval" / f"{method}-seed{seed}-b{budget}.json", sample
             )
             row = {**row, **budget_stats(run, budget, pretrain), "seed": seed, "network": str(path)}
             table.setdefault(method, {}).setdefault(budget, []).append(row)
@@ -407,6 +420,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tasks", default="acrobot", help="comma-separated tasks (acrobot)")
     parser.add_argument("--methods", default=None, help="comma-separated subset of " + ",".join(METHODS))
     parser.add_argument("--budgets", default=None, help="comma-separated budgets (override)")
+    parser.add_argument("--trust-region", choices=("lqr", "none", "box"), default=None, help="the deployed guard")
     parser.add_argument("--no-ship", action="store_true", help="do not copy the shipped network into the repository")
     args = parser.parse_args(argv)
     out = Path(args.out or f"/tmp/seagul-bench-closed-loop{'-quick' if args.quick else ''}")
@@ -422,6 +436,8 @@ def main(argv: list[str] | None = None) -> int:
             unknown = set(bench.methods) - set(METHODS)
             if unknown or SHIPPED not in bench.methods:
                 parser.error(f"--methods must name known methods including {SHIPPED}; unknown: {sorted(unknown)}")
+        if args.trust_region:
+            bench.trust_region = args.trust_region
         if args.budgets:
             bench.budgets = tuple(int(b) for b in args.budgets.split(","))
         result[task] = run_task(bench, out / task, args.workers, ship)

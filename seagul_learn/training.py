@@ -150,8 +150,9 @@ class TrainConfig:
     """Closed-loop: first rounds collect with the ``"lqr"``-guarded MPC (teachable queries)."""
     cl_selection: str = "farthest"
     """Closed-loop: which queries to solve: ``"farthest"`` from the data, ``"lowest"`` under-estimates, ``"random"``."""
-    cl_tail_stride: int = 1
-    """Closed-loop: only queries whose tail has a multiple of this many intervals."""
+    cl_tail_stride: int = 5
+    """Closed-loop: only queries whose tail has a multiple of this many intervals (acrobot: 5 = every 0.5 s, so 9
+    tail solvers are built, ~12 s of compilation each on first use, instead of 45)."""
     cl_uniform_fraction: float = 0.0
     """Closed-loop: share of each round's solves spent on uniform draws from X0."""
     cl_uniform_solves: int = 0

@@ -165,3 +165,19 @@ def test_closed_loop_training_resumes_exactly(closed_loop_run, tmp_path):
     a = [(r.sampler, r.x_init.tolist(), r.tau) for r in resumed.dataset.records()]
     b = [(r.sampler, r.x_init.tolist(), r.tau) for r in full.dataset.records()]
     assert a == b
+
+
+def test_batch_solver_routes_tail_times_to_tail_problems_bellman_consistent():
+    """A request with tau below T0 is the tail problem: its value equals the full solve's cost to go at that knot."""
+    from seagul_learn.solving import trajopt_batch_solver
+    from seagul_learn.trajopt import TrajectoryOptimizer
+
+    task = make_task("acrobot")
+    full = TrajectoryOptimizer(task, codegen=False).solve(task.goal + np.array([0.2, -0.2, 0.3, 0.0]))
+    assert full.success
+    k = 30  # knot 30 of 50: 2.0 s to go
+    solver = trajopt_batch_solver("acrobot", solver_options={"codegen": False})
+    (tail,) = solver(full.states[k][None], np.array([full.time_to_go[k]]))
+    assert tail.success and tail.states.shape[0] == 51 - k
+    assert tail.value == pytest.approx(full.cost_to_go[k], rel=1e-6, abs=1e-8)
+    np.testing.assert_allclose(tail.grad_x, full.knot_grads[k], rtol=1e-4, atol=1e-6)
