@@ -74,6 +74,8 @@ class BenchConfig:
     task: str = "acrobot"
     budgets: tuple[int, ...] = (100, 300)
     seeds: int = 5
+    seed_list: tuple[int, ...] | None = None
+    """Explicit seeds (default ``range(seeds)``)."""
     grid: int = 20
     heldout: int = 100
     query_sample: int = 30
@@ -127,7 +129,7 @@ def train_all(bench: BenchConfig, out: Path, workers: int) -> dict[tuple[str, in
 
     jobs = {}
     for method in bench.methods:
-        for seed in range(bench.seeds):
+        for seed in bench.seed_list or range(bench.seeds):
             cfg = {
                 "task": bench.task,
                 # The closed-loop sampler collects with the controller as it is deployed (same guard).
@@ -371,6 +373,7 @@ def run_task(bench: BenchConfig, out: Path, workers: int, ship_dir: Path | None)
         "method": SHIPPED,
         "budget": final,
         "seeds": bench.seeds,
+        "seed_list": list(bench.seed_list or range(bench.seeds)),
         "success_rate": med,
         "full_horizon_success_rate": full["success_rate"],
         "heldout_success_rate": float(np.median([s["heldout_success_rate"] for s in shipped])),
@@ -415,6 +418,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="a minutes-long check of the pipeline")
     parser.add_argument("--seeds", type=int, default=None, help="override the number of seeds")
+    parser.add_argument("--seed-list", default=None, help="explicit comma-separated seeds (overrides --seeds)")
     parser.add_argument("--workers", type=int, default=2, help="parallel processes (training runs, episodes)")
     parser.add_argument("--out", default=None, help="work directory (default /tmp/seagul-bench-closed-loop[-quick])")
     parser.add_argument("--tasks", default="acrobot", help="comma-separated tasks (acrobot)")
@@ -436,6 +440,9 @@ def main(argv: list[str] | None = None) -> int:
             unknown = set(bench.methods) - set(METHODS)
             if unknown or SHIPPED not in bench.methods:
                 parser.error(f"--methods must name known methods including {SHIPPED}; unknown: {sorted(unknown)}")
+        if args.seed_list:
+            bench.seed_list = tuple(int(v) for v in args.seed_list.split(","))
+            bench.seeds = len(bench.seed_list)
         if args.trust_region:
             bench.trust_region = args.trust_region
         if args.budgets:

@@ -29,12 +29,19 @@ BatchSolver = Callable[[np.ndarray, np.ndarray], list[SolveResult]]
 """``(starts (n, nx), taus (n,)) -> list[SolveResult]`` in input order; never raises for an infeasible start."""
 
 
-TAIL_SOLVER_DEFAULTS: dict[str, Any] = {"multi_start": "never", "max_iter": 150}
+TAIL_SOLVER_DEFAULTS: dict[str, Any] = {
+    "plan": ("ipopt_fast:line", "ipopt:line", "ipopt:goal"),
+    "multi_start": "never",
+    "max_iter": 150,
+    "solver_options": {"ipopt.max_wall_time": 20.0},
+}
 """Optimizer options of tail problems unless the caller sets them. Tails from the MPC's planned terminal states are
 far off the data: 1-2 s per solve with the multi-start's extra attempts (half without), and a fallback IPOPT attempt
 at 500 iterations once took minutes. No multi-start (a poor local optimum only *over*-estimates ``V`` there, the
-direction that keeps the planner away) and at most 150 iterations per attempt (a failed tail is recorded, counted
-and never trained on)."""
+direction that keeps the planner away), at most 150 iterations and 20 s per attempt, and IPOPT only: fatrop, the
+first attempt of a full solve, looped without end inside its search-direction computation on two tails of the
+closed-loop benchmark (minutes without returning; max_iter does not bound that loop), IPOPT has a wall-time limit.
+A failed tail is recorded, counted and never trained on."""
 
 
 def tail_horizon(task: Task, tau: float) -> int | None:
