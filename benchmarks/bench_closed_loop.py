@@ -100,7 +100,7 @@ class BenchConfig:
         if quick:
             return cls(
                 task=task,
-                budgets=(25, 50),
+                budgets=(20, 50),
                 seeds=2,
                 grid=3,
                 heldout=4,

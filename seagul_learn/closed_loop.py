@@ -70,7 +70,7 @@ class ClosedLoopOptions:
     """Closed-loop episodes per round (starts drawn uniformly from X0, nominal time to go)."""
     horizon: int | None = None
     """Lookahead steps of the collecting MPC (None: the task's default, as deployed)."""
-    trust_region: str = "none"
+    trust_region: str = "lqr"
     """Guard of the collecting (= deployed) MPC after the warm-up rounds."""
     warmup_rounds: int = 1
     """Rounds at the start that collect with the ``"lqr"``-guarded MPC instead."""

@@ -1,15 +1,39 @@
-"""The paper's experiment end to end (``seagul reproduce``): validation set, SEAGuL vs uniform training over paired
-seeds, closed-loop MPC evaluation of both networks next to LQR and the full-horizon MPC, and a report.
+"""The paper's experiment end to end (``seagul reproduce``): validation set, three ways of learning the value
+function trained over paired seeds, closed-loop MPC evaluation of every network next to LQR and the full-horizon
+MPC, and a report.
+
+**Learning methods** (:data:`METHODS`: a name and its :class:`~seagul_learn.training.TrainConfig` overrides). Every
+method of a seed starts from IDENTICAL pretrained parameters and spends the same number of solves and training steps:
+
+* ``uniform`` — the baseline: starts drawn uniformly from X0 at the nominal time to go.
+* ``adversarial`` — SEAGuL (paper Alg. 1): projected gradient-ascent chains on the network's error, started from the
+  baseline's starts.
+* ``closed-loop`` — each round the deployed limited-lookahead MPC (the experiment's horizon) is rolled out and the
+  tail problems at its planned terminal states are solved (:mod:`seagul_learn.closed_loop`); Sobolev training.
+
+**Validation** (``learning.json``, ``validation_curves.png``): both validation MSEs of every run, each method paired
+against the uniform baseline per seed (median ratio, win fraction, Wilcoxon test; :mod:`seagul_learn.comparison`).
+
+**Closed loop for every seed** (``closed_loop/summary.json``, ``success_vs_solves.png``). Every (method, seed) run
+saves its network after each budget of :attr:`Preset.budgets`; each of these networks is the terminal cost of the
+limited-lookahead MPC over the main start grid. Per method the summary holds the grid success of every seed at the
+full budget, its median and 25/75 % quantiles, the median at every budget (the success-per-solve curve), the
+planner-query error (``|Vhat - V|`` at a sample of the final MPC's planned terminal states, re-solved as tail
+problems: :func:`seagul_learn.closed_loop.query_errors`; median over seeds of the per-seed median and p95) and a
+paired test of the method against the closed-loop method on the per-seed success rates
+(:func:`paired_success_comparison`). LQR, PPO (if given) and the full-horizon MPC (on the coarser reference grid,
+next to every final network) run as baselines.
 
 Every stage writes its results into the run directory before the next starts, and a finished stage is never run
-again: training runs checkpoint after each round (``seagul_learn.training``), solves are cached on disk, and the
-closed-loop table of each policy is stored as soon as it is complete. So Ctrl-C (or SIGKILL) at any moment leaves a
-run that ``seagul reproduce TASK --resume DIR`` finishes with the same numbers.
+again: training runs checkpoint after each round (``seagul_learn.training``), solves (training, query errors) are
+cached on disk bit for bit, and the closed-loop episodes of each policy and each query error are stored as soon as
+they are complete. So Ctrl-C (or SIGKILL) at any moment leaves a run that ``seagul reproduce TASK --resume DIR``
+finishes with the same numbers.
 
 Presets (one place for every number of the experiment; the paper's settings are §6 of the paper):
 
-* ``quick`` — the README's main job; the acrobot finishes in about ten minutes on 2 cores. Fewer seeds, a smaller
-  budget and a coarser closed-loop grid than the paper, same algorithms.
+* ``quick`` — the README's main job: fewer seeds, a smaller budget and a coarser closed-loop grid than the paper,
+  same algorithms.
 * ``smoke`` — seconds of work past the validation set: checks the whole pipeline (tests, CI), says nothing.
 * ``paper`` — acrobot: 100 solves per network, 10 solves every 500 training steps (10,000 steps), 10 paired seeds,
   a 20 x 20 closed-loop grid; glider: the same schedule with its own grid.
@@ -18,10 +42,12 @@ Presets (one place for every number of the experiment; the paper's settings are 
 from __future__ import annotations
 
 import json
+import math
 import os
+import shutil
 import time
-from collections.abc import Callable
-from dataclasses import asdict, dataclass, replace
+from collections.abc import Callable, Mapping, Sequence
+from dataclasses import asdict, dataclass, field, replace
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -38,7 +64,41 @@ from seagul_learn.comparison import (
 )
 from seagul_learn.dataset import atomic_write_text
 
-SAMPLER_NAMES = ("uniform", "adversarial")
+METHODS: dict[str, dict[str, Any]] = {
+    "uniform": {"sampler": "uniform"},
+    "adversarial": {"sampler": "adversarial"},
+    "closed-loop": {"sampler": "closed-loop", "sobolev_weight": 1.0},
+}
+"""The learning methods: name -> :class:`~seagul_learn.training.TrainConfig` overrides (module docstring)."""
+
+METHOD_LABELS: dict[str, str] = {"uniform": "uniform", "adversarial": "SEAGuL", "closed-loop": "closed-loop"}
+"""Names of the methods in tables and figures (the policy of a method is ``"<label> MPC"``)."""
+
+BASELINE_METHOD = "uniform"
+"""The method every other one is compared to on validation error (``learning.json``)."""
+REFERENCE_METHOD = "closed-loop"
+"""The method every other one is compared to on closed-loop success (``closed_loop/summary.json``)."""
+
+#: TrainConfig fields the experiment sets itself (a preset's ``train_overrides`` may not touch them).
+OWNED_TRAIN_FIELDS = (
+    "task", "sampler", "budget", "solves_per_round", "train_steps_per_round", "seed", "snapshots", "workers",
+    "backend", "progress",
+)  # fmt: skip
+
+
+def method_label(method: str) -> str:
+    """The method's name in tables and figures."""
+    return METHOD_LABELS.get(method, method)
+
+
+def policy_label(method: str, seed: int, budget: int | None = None, reference: bool = False) -> str:
+    """The closed-loop policy name of one network: ``"SEAGuL MPC (seed 0)"``, ``"... (seed 0, 20 solves)"``, ...
+
+    ``budget`` None is the final (full-budget) network; ``reference`` marks its episodes on the reference grid.
+    """
+    extra = "" if budget is None else f", {budget} solves"
+    extra += ", reference grid" if reference else ""
+    return f"{method_label(method)} MPC (seed {seed}{extra})"
 
 
 @dataclass(frozen=True)
@@ -46,7 +106,7 @@ class Preset:
     """The numbers of one experiment size (everything else is the library's defaults)."""
 
     seeds: int
-    """Paired seeds (each trains one uniform and one adversarial network from identical initial parameters)."""
+    """Paired seeds (each trains one network per method from identical initial parameters)."""
     budget: int
     """Solves per network."""
     solves_per_round: int
@@ -58,8 +118,91 @@ class Preset:
     reference_grid_points: int
     """Closed-loop grid points per axis for the (expensive) full-horizon MPC."""
     mpc_horizon: int
-    """Lookahead steps of the limited-lookahead MPC."""
+    """Lookahead steps of the limited-lookahead MPC (deployed, and the closed-loop method's collector)."""
+    methods: tuple[str, ...] = tuple(METHODS)
+    """Learning methods compared (names in :data:`METHODS`; must include the uniform baseline)."""
+    budgets: tuple[int, ...] = ()
+    """Budgets of the success-per-solve curve (each a round's end; the largest is ``budget``; empty: ``(budget,)``)."""
+    train_overrides: tuple[tuple[str, Any], ...] = ()
+    """TrainConfig overrides of this preset: ``("field", value)`` for every method, ``("method:field", value)`` for
+    one (a per-method entry wins over :data:`METHODS`; an every-method entry may not collide with it)."""
+    query_samples: int = 20
+    """Planner queries re-solved per (method, seed) for the planner-query error."""
+    query_tail_stride: int = 1
+    """Only queries whose tail problem has a multiple of this many intervals are sampled (fixed-step tasks; each
+    interval count is an optimizer of its own, compiled on first use: the smoke preset keeps to a few)."""
 
+    def __post_init__(self) -> None:
+        if not self.budgets:
+            object.__setattr__(self, "budgets", (self.budget,))
+        object.__setattr__(self, "methods", tuple(self.methods))
+        object.__setattr__(self, "budgets", tuple(int(b) for b in self.budgets))
+        object.__setattr__(self, "train_overrides", tuple((str(k), v) for k, v in self.train_overrides))
+        self.validate()
+
+    def validate(self) -> None:
+        """Raise a ValueError naming the first bad field."""
+        for name in ("seeds", "budget", "solves_per_round", "grid_points", "reference_grid_points", "mpc_horizon"):
+            if int(getattr(self, name)) < 1:
+                raise ValueError(f"preset {name} must be >= 1, got {getattr(self, name)}")
+        if self.train_steps_per_round < 0:
+            raise ValueError(f"preset train_steps_per_round must be >= 0, got {self.train_steps_per_round}")
+        if self.query_samples < 1:
+            raise ValueError(f"preset query_samples must be >= 1, got {self.query_samples}")
+        if self.query_tail_stride < 1:
+            raise ValueError(f"preset query_tail_stride must be >= 1, got {self.query_tail_stride}")
+        unknown = [m for m in self.methods if m not in METHODS]
+        if unknown or not self.methods or len(set(self.methods)) != len(self.methods):
+            raise ValueError(f"preset methods must be distinct names from {list(METHODS)}, got {list(self.methods)}")
+        if BASELINE_METHOD not in self.methods:
+            raise ValueError(f"preset methods must include the {BASELINE_METHOD!r} baseline, got {list(self.methods)}")
+        b = self.budgets
+        if list(b) != sorted(set(b)) or b[0] < 1 or b[-1] != self.budget:
+            raise ValueError(f"preset budgets must increase from >= 1 to budget = {self.budget}, got {list(b)}")
+        off_round = [x for x in b if x != self.budget and x % self.solves_per_round]
+        if off_round:
+            raise ValueError(
+                f"preset budgets {off_round} are not ends of rounds of {self.solves_per_round} solves (no snapshot)"
+            )
+        for key, _ in self.train_overrides:
+            method, _, name = key.rpartition(":")
+            if method and method not in self.methods:
+                raise ValueError(f"preset train_overrides {key!r}: {method!r} is not one of {list(self.methods)}")
+            if name in OWNED_TRAIN_FIELDS:
+                raise ValueError(f"preset train_overrides may not set {name!r} (the experiment sets it)")
+            clash = [m for m in self.methods if not method and name in METHODS[m]]
+            if clash:
+                raise ValueError(
+                    f"preset train_overrides {key!r} applies to every method but METHODS sets it for {clash}; "
+                    f"use '<method>:{name}'"
+                )
+
+    def train_fields(self, method: str) -> dict[str, Any]:
+        """The TrainConfig overrides of one method: every-method overrides, :data:`METHODS`, per-method ones."""
+        common = {k: v for k, v in self.train_overrides if ":" not in k}
+        own = {k.rpartition(":")[2]: v for k, v in self.train_overrides if k.rpartition(":")[0] == method}
+        return {**common, **METHODS[method], **own}
+
+
+# Quick/paper closed-loop settings are the library's defaults; smoke shrinks them to seconds: one interpreted
+# episode per round, half of each round's solves uniform, tails of multiples of 5 intervals only (few optimizers).
+_SMOKE_OVERRIDES: tuple[tuple[str, Any], ...] = (
+    ("cl_jit", False),
+    ("cl_episodes", 1),
+    ("cl_uniform_solves", 0),
+    ("cl_uniform_fraction", 0.5),
+    ("cl_tail_stride", 5),
+)
+
+# Quick: the closed-loop method starts its loop after 20 uniform solves (a 10-solve network's planner queries are
+# states with values of 1e4 and more), 10 episodes a round, tails every 1 s (4 tail solvers to compile on a fresh
+# machine), labels clipped at 300 (docs/closed_loop.md).
+_QUICK_CLOSED_LOOP: tuple[tuple[str, Any], ...] = (
+    ("closed-loop:cl_uniform_solves", 20),
+    ("closed-loop:cl_episodes", 10),
+    ("closed-loop:cl_tail_stride", 10),
+    ("closed-loop:value_cap", 300.0),
+)
 
 PRESETS: dict[str, dict[str, Preset]] = {
     "acrobot": {
@@ -71,6 +214,10 @@ PRESETS: dict[str, dict[str, Preset]] = {
             grid_points=2,
             reference_grid_points=1,
             mpc_horizon=3,
+            budgets=(2, 4),
+            train_overrides=_SMOKE_OVERRIDES,
+            query_samples=2,
+            query_tail_stride=10,
         ),
         "quick": Preset(
             seeds=4,
@@ -80,6 +227,10 @@ PRESETS: dict[str, dict[str, Preset]] = {
             grid_points=10,
             reference_grid_points=5,
             mpc_horizon=5,
+            budgets=(20, 40, 60),
+            train_overrides=_QUICK_CLOSED_LOOP,
+            query_samples=10,
+            query_tail_stride=10,
         ),
         "paper": Preset(
             seeds=10,
@@ -89,6 +240,8 @@ PRESETS: dict[str, dict[str, Preset]] = {
             grid_points=20,
             reference_grid_points=10,
             mpc_horizon=5,
+            budgets=(20, 50, 100),
+            query_samples=50,
         ),
     },
     "glider": {
@@ -100,6 +253,10 @@ PRESETS: dict[str, dict[str, Preset]] = {
             grid_points=1,
             reference_grid_points=1,
             mpc_horizon=5,
+            budgets=(2,),
+            train_overrides=_SMOKE_OVERRIDES,
+            query_samples=2,
+            query_tail_stride=10,
         ),
         "quick": Preset(
             seeds=3,
@@ -109,6 +266,8 @@ PRESETS: dict[str, dict[str, Preset]] = {
             grid_points=4,
             reference_grid_points=3,
             mpc_horizon=10,
+            budgets=(10, 20, 40),
+            query_samples=20,
         ),
         "paper": Preset(
             seeds=10,
@@ -118,6 +277,8 @@ PRESETS: dict[str, dict[str, Preset]] = {
             grid_points=6,
             reference_grid_points=4,
             mpc_horizon=10,
+            budgets=(20, 50, 100),
+            query_samples=50,
         ),
     },
 }
@@ -130,7 +291,7 @@ class ExperimentConfig:
     task: str = "acrobot"
     """Task name."""
     preset: str = "quick"
-    """``"quick"`` or ``"paper"`` (see :data:`PRESETS`)."""
+    """``"quick"``, ``"paper"`` or ``"smoke"`` (see :data:`PRESETS`)."""
     seeds: int | None = None
     """Override of the preset's number of paired seeds."""
     workers: int = 1
@@ -165,6 +326,19 @@ class ExperimentConfig:
         return preset
 
 
+@dataclass(frozen=True)
+class LearnedPolicy:
+    """One trained network as a closed-loop policy: which run and budget it comes from."""
+
+    method: str
+    seed: int
+    budget: int
+    final: bool
+    """The full-budget network (its queries are recorded for the planner-query error)."""
+    spec: Any = field(compare=False)
+    """Its :class:`~seagul_control.evaluation.PolicySpec`."""
+
+
 class Experiment:
     """A run directory and its stages; see the module docstring."""
 
@@ -192,6 +366,7 @@ class Experiment:
             raise FileExistsError(f"{str(out)!r} already holds an experiment; use --resume {out} to continue it")
         out.mkdir(parents=True, exist_ok=True)
         experiment = cls(config, out)
+        experiment.train_jobs()  # checks the preset's TrainConfig overrides before any work
         experiment._save_state()
         return experiment
 
@@ -259,181 +434,338 @@ class Experiment:
         )
         return len(records)
 
-    def train_configs(self) -> list[Any]:
-        """One :class:`~seagul_learn.training.TrainConfig` per (seed, sampler)."""
+    # ------------------------------------------------------------------------------------------------ training
+    def train_config(self, method: str, seed: int) -> Any:
+        """The :class:`~seagul_learn.training.TrainConfig` of one (method, seed) run.
+
+        The closed-loop method's collecting MPC has the deployed horizon (``mpc_horizon``) unless the preset says
+        otherwise; the other samplers ignore the ``cl_*`` fields.
+        """
+        from dataclasses import fields
+
         from seagul_learn.training import TrainConfig
 
         p = self.preset
-        return [
-            TrainConfig(
-                task=self.task.name,
-                sampler=sampler,
-                budget=p.budget,
-                solves_per_round=p.solves_per_round,
-                train_steps_per_round=p.train_steps_per_round,
-                seed=seed,
-                progress=False,
-            )
-            for seed in range(p.seeds)
-            for sampler in SAMPLER_NAMES
-        ]
+        overrides = p.train_fields(method)
+        known = {f.name for f in fields(TrainConfig)}
+        unknown = sorted(set(overrides) - known)
+        if unknown:
+            raise ValueError(f"preset train_overrides / METHODS[{method!r}] name unknown TrainConfig fields {unknown}")
+        base: dict[str, Any] = {
+            "task": self.task.name,
+            "budget": p.budget,
+            "solves_per_round": p.solves_per_round,
+            "train_steps_per_round": p.train_steps_per_round,
+            "seed": seed,
+            "snapshots": p.budgets,
+            "cl_horizon": p.mpc_horizon,
+            "progress": False,
+        }
+        return TrainConfig(**{**base, **overrides})
 
-    def run_dir(self, sampler: str, seed: int) -> Path:
+    def train_jobs(self) -> list[tuple[str, Any]]:
+        """``(method, TrainConfig)`` of every run, by seed then method."""
+        return [(m, self.train_config(m, seed)) for seed in range(self.preset.seeds) for m in self.preset.methods]
+
+    def run_dir(self, method: str, seed: int) -> Path:
         """Where one training run lives."""
-        return self.out / "train" / f"{sampler}-seed{seed}"
+        return self.out / "train" / f"{method}-seed{seed}"
+
+    def network_path(self, method: str, seed: int, budget: int | None = None) -> Path:
+        """The network of a run after ``budget`` solves (None or the full budget: the final ``network.pt``)."""
+        if budget is None or budget == self.preset.budget:
+            return self.run_dir(method, seed) / "network.pt"
+        return self.run_dir(method, seed) / f"network_{budget}.pt"
+
+    def _run_complete(self, method: str, seed: int) -> bool:
+        if not (self.run_dir(method, seed) / "metrics.json").is_file():
+            return False
+        return all(self.network_path(method, seed, b).is_file() for b in self.preset.budgets)
 
     def train_all(self) -> dict[str, list[dict[str, Any]]]:
-        """Train every (seed, sampler) run not finished yet; returns the metrics per sampler, by seed."""
+        """Train every (method, seed) run not finished yet; returns the metrics per method, by seed.
+
+        A finished run lacking a snapshot (killed between its checkpoint and the snapshot's write) is trained again
+        from scratch: training is deterministic and its solves come from the cache, so it ends with the same weights.
+        """
+        jobs = self.train_jobs()
+        self._train([(m, c) for m, c in jobs if not self._run_complete(m, c.seed)], total=len(jobs))
+        lacking = [(m, c) for m, c in jobs if not self._run_complete(m, c.seed)]
+        for m, c in lacking:
+            shutil.rmtree(self.run_dir(m, c.seed))
+        self._train(lacking, total=len(lacking))
+        still = [str(self.run_dir(m, c.seed)) for m, c in jobs if not self._run_complete(m, c.seed)]
+        if still:
+            raise RuntimeError(f"training runs {still} finished without their snapshots {list(self.preset.budgets)}")
+        runs: dict[str, list[dict[str, Any]]] = {m: [] for m in self.preset.methods}
+        for m, c in jobs:
+            runs[m].append(json.loads((self.run_dir(m, c.seed) / "metrics.json").read_text()))
+        return runs
+
+    def _train(self, todo: list[tuple[str, Any]], total: int) -> None:
         from joblib import Parallel, delayed
         from tqdm.auto import tqdm
 
-        configs = self.train_configs()
-        todo = [c for c in configs if not (self.run_dir(c.sampler, c.seed) / "metrics.json").is_file()]
-        if todo:
-            jobs = (delayed(_train_one)(c, self.run_dir(c.sampler, c.seed), self._solver_cache()) for c in todo)
-            bar = tqdm(
-                total=len(configs),
-                initial=len(configs) - len(todo),
-                desc="training runs",
-                disable=not self.config.progress,
-            )
-            if self.config.backend == "ray" or self.config.workers == 1:
-                # Ray parallelises the solves inside each run; locally with one worker there is nothing to spread.
-                for config in todo:
-                    _train_one(
-                        config,
-                        self.run_dir(config.sampler, config.seed),
-                        self._solver_cache(),
-                        workers=self.config.workers,
-                        backend=self.config.backend,
-                    )
-                    bar.update(1)
-            else:
-                for _ in Parallel(n_jobs=self.config.workers, return_as="generator_unordered")(jobs):
-                    bar.update(1)
-            bar.close()
-        runs: dict[str, list[dict[str, Any]]] = {s: [] for s in SAMPLER_NAMES}
-        for c in configs:
-            runs[c.sampler].append(json.loads((self.run_dir(c.sampler, c.seed) / "metrics.json").read_text()))
-        return runs
+        if not todo:
+            return
+        cache = self._solver_cache()
+        bar = tqdm(total=total, initial=total - len(todo), desc="training runs", disable=not self.config.progress)
+        if self.config.backend == "ray" or self.config.workers == 1:
+            # Ray parallelises the solves inside each run; locally with one worker there is nothing to spread.
+            for method, config in todo:
+                out = self.run_dir(method, config.seed)
+                _train_one(config, out, cache, workers=self.config.workers, backend=self.config.backend)
+                bar.update(1)
+        else:
+            jobs = (delayed(_train_one)(c, self.run_dir(m, c.seed), cache) for m, c in todo)
+            for _ in Parallel(n_jobs=self.config.workers, return_as="generator_unordered")(jobs):
+                bar.update(1)
+        bar.close()
 
     def compare(self, runs: dict[str, list[dict[str, Any]]]) -> dict[str, Any]:
-        """Paired statistics at the full budget, and the validation-curve figure."""
+        """Validation errors at the full budget, each method paired against the uniform baseline; the figure.
+
+        ``learning.json``: per metric, every method's per-seed errors and ``vs_uniform`` (a
+        :class:`~seagul_learn.comparison.PairedComparison` per other method); the failed solves per method and the
+        training steps after pretraining.
+        """
+        methods = self.preset.methods
         out: dict[str, Any] = {}
         for metric in METRICS:
-            adversarial = final_metric(runs["adversarial"], metric)
-            uniform = final_metric(runs["uniform"], metric)
-            out[metric] = {
-                "adversarial": adversarial,
-                "uniform": uniform,
-                "comparison": asdict(paired_comparison(adversarial, uniform)),
+            block: dict[str, Any] = {m: final_metric(runs[m], metric) for m in methods}
+            block["vs_uniform"] = {
+                m: asdict(paired_comparison(block[m], block[BASELINE_METHOD])) for m in methods if m != BASELINE_METHOD
             }
-        out["failures"] = {s: int(sum(r["metrics"][-1]["failures"] for r in runs[s])) for s in SAMPLER_NAMES}
-        out["train_steps"] = int(runs["uniform"][0]["metrics"][-1]["train_steps"])
+            out[metric] = block
+        out["failures"] = {m: int(sum(r["metrics"][-1]["failures"] for r in runs[m])) for m in methods}
+        out["train_steps"] = int(runs[BASELINE_METHOD][0]["metrics"][-1]["train_steps"])
         plot_curves_with_band(
-            runs,
+            {method_label(m): runs[m] for m in methods},
             self.out / "validation_curves.png",
             title=f"{self.task.name}: validation MSE vs solves (median, 25-75 % band over {self.preset.seeds} seeds)",
         )
         atomic_write_text(self.out / "learning.json", json.dumps(out, indent=2, allow_nan=True))
         return out
 
-    def policy_specs(self) -> tuple[list[Any], list[Any]]:
-        """``(main, reference)``: the policies run on the main grid, and those (expensive) on the coarser grid.
-
-        The learned MPCs use the seed-0 networks of both samplers (same seed, same initial parameters), so the
-        comparison is paired like the learning curves.
-        """
+    # --------------------------------------------------------------------------------------------- closed loop
+    def learned_policies(self) -> list[LearnedPolicy]:
+        """Every snapshot network of every (method, seed) run as a limited-lookahead MPC, by method, seed, budget."""
         from seagul_control.evaluation import PolicySpec
 
-        horizon = (("horizon", self.preset.mpc_horizon),)
-        main = [
-            PolicySpec("mpc", "SEAGuL MPC", str(self.run_dir("adversarial", 0) / "network.pt"), horizon),
-            PolicySpec("mpc", "uniform MPC", str(self.run_dir("uniform", 0) / "network.pt"), horizon),
-            PolicySpec("lqr", "LQR"),
-        ]
+        p = self.preset
+        horizon = (("horizon", p.mpc_horizon),)
+        out = []
+        for method in p.methods:
+            for seed in range(p.seeds):
+                for budget in p.budgets:
+                    final = budget == p.budget
+                    label = policy_label(method, seed, None if final else budget)
+                    path = str(self.network_path(method, seed, budget))
+                    out.append(LearnedPolicy(method, seed, budget, final, PolicySpec("mpc", label, path, horizon)))
+        return out
+
+    def baseline_specs(self) -> tuple[list[Any], list[Any]]:
+        """``(main, reference)``: LQR (and PPO) on the main grid; the (expensive) full-horizon MPC on the coarse one."""
+        from seagul_control.evaluation import PolicySpec
+
+        main = [PolicySpec("lqr", "LQR")]
         if self.config.ppo_model:
             main.append(PolicySpec("sb3", "PPO", self.config.ppo_model))
-        reference = [PolicySpec("full", "full-horizon MPC")]
-        return main, reference
+        return main, [PolicySpec("full", "full-horizon MPC")]
 
-    def _episodes(self, spec: Any, starts: np.ndarray, record: bool) -> list[Any]:
+    def _episodes(self, spec: Any, starts: np.ndarray, record: bool, record_queries: bool = False) -> list[Any]:
         """One policy's episodes, from its stored table if a previous (interrupted) run finished it."""
         from seagul_control.evaluation import EpisodeResult, evaluate
 
-        slug = "".join(ch if ch.isalnum() else "-" for ch in spec.name.lower())
-        path = self.out / "closed_loop" / "episodes" / f"{slug}.json"
+        path = self.out / "closed_loop" / "episodes" / f"{_slug(spec.name)}.json"
         if path.is_file():
             return [EpisodeResult(**row) for row in json.loads(path.read_text())]
-        results = evaluate(self.task.name, [spec], starts, self.config.workers, self.config.progress, record)
+        results = evaluate(
+            self.task.name,
+            [spec],
+            starts,
+            self.config.workers,
+            self.config.progress,
+            record,
+            record_queries=record_queries,
+        )
         path.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_text(path, json.dumps([asdict(r) for r in results], allow_nan=True))
         return results
 
-    def evaluate_closed_loop(self) -> dict[str, Any]:
-        """Closed-loop runs of every policy over the start grids (each policy's episodes stored when complete)."""
-        from seagul_control.evaluation import start_grid, summarize, write_outputs
+    def _query_error(self, policy: LearnedPolicy, episodes: Sequence[Any]) -> dict[str, Any]:
+        """The planner-query error of a final network over its grid episodes' queries (stored when computed)."""
+        path = self.out / "closed_loop" / "query_errors" / f"{policy.method}-seed{policy.seed}.json"
+        if path.is_file():
+            return json.loads(path.read_text())
+        from seagul_learn.closed_loop import query_errors
+        from seagul_learn.solving import CachedBatchSolver, solver_key, trajopt_batch_solver
+        from seagul_learn.value_network import ValueNetwork
 
-        record = self.task.name == "glider"  # the glider's trajectories are plotted (paper Fig. 3 centre)
-        main_specs, reference_specs = self.policy_specs()
-        starts, grid = start_grid(self.task, self.preset.grid_points)
-        ref_starts, ref_grid = start_grid(self.task, self.preset.reference_grid_points)
-        main_results = [r for spec in main_specs for r in self._episodes(spec, starts, record)]
-        ref_results = [r for spec in reference_specs for r in self._episodes(spec, ref_starts, record)]
-        # The learned MPCs on the reference grid too, so every success rate can be compared on the same starts.
-        ref_learned = [
-            r for spec in main_specs[:2] for r in self._episodes(_relabel(spec, " (reference grid)"), ref_starts, False)
-        ]
-        main_paths = write_outputs(self.out / "closed_loop" / "main", self.task.name, main_results, grid)
-        ref_paths = write_outputs(
-            self.out / "closed_loop" / "reference", self.task.name, ref_results + ref_learned, ref_grid
+        queries = np.array([q for e in episodes for q in e.queries], dtype=np.float64).reshape(-1, self.task.nx + 1)
+        stride = self.preset.query_tail_stride
+        if stride > 1:
+            queries = queries[[_tail_multiple(self.task, float(t), stride) for t in queries[:, -1]]]
+        solver = CachedBatchSolver(
+            trajopt_batch_solver(self.task.name, workers=self.config.workers, backend=self.config.backend),
+            self._solver_cache(),
+            solver_key(None),
         )
-        rows = summarize(self.task.name, main_results) + summarize(self.task.name, ref_results + ref_learned)
-        figures = [(str(main_paths["heatmap"].relative_to(self.out)), _heatmap_caption(self.task.name, grid))]
-        figures.append((str(ref_paths["heatmap"].relative_to(self.out)), "The same on the coarser reference grid"))
+        network = ValueNetwork.load(policy.spec.path)
+        # One sampling seed for every network: the sample is a function of the queries only.
+        error = query_errors(self.task, network, queries, solver, num=self.preset.query_samples, seed=0).as_dict()
+        path.parent.mkdir(parents=True, exist_ok=True)
+        atomic_write_text(path, json.dumps(error, indent=2, allow_nan=True))
+        return error
+
+    def evaluate_closed_loop(self) -> dict[str, Any]:
+        """Closed-loop runs of every network and baseline over the start grids, the per-method statistics, figures.
+
+        Writes ``closed_loop/summary.json`` (``policies``: one row per policy and grid; ``methods``: see
+        :func:`method_statistics`; the grids and budgets) and ``success_vs_solves.png``.
+        """
+        from seagul_control.evaluation import start_grid, summarize
+
+        p = self.preset
+        glider = self.task.name == "glider"  # the glider's trajectories are plotted (paper Fig. 3 centre)
+        starts, grid = start_grid(self.task, p.grid_points)
+        ref_starts, ref_grid = start_grid(self.task, p.reference_grid_points)
+        learned = self.learned_policies()
+        finals = [lp for lp in learned if lp.final]
+        episodes: dict[str, list[Any]] = {}
+        for lp in learned:
+            record = glider and lp.final and lp.seed == 0
+            episodes[lp.spec.name] = self._episodes(lp.spec, starts, record, record_queries=lp.final)
+        errors = {(lp.method, lp.seed): self._query_error(lp, episodes[lp.spec.name]) for lp in finals}
+        main_specs, reference_specs = self.baseline_specs()
+        base_results = [r for spec in main_specs for r in self._episodes(spec, starts, glider)]
+        ref_results = [r for spec in reference_specs for r in self._episodes(spec, ref_starts, glider)]
+        # Every final network on the reference grid too, so its success compares with the full-horizon MPC's.
+        ref_learned: dict[tuple[str, int], list[Any]] = {}
+        for lp in finals:
+            spec = replace(lp.spec, label=policy_label(lp.method, lp.seed, reference=True))
+            ref_learned[(lp.method, lp.seed)] = self._episodes(spec, ref_starts, False)
+
+        main_results = [r for lp in learned for r in episodes[lp.spec.name]] + base_results
+        reference_results = ref_results + [r for lp in finals for r in ref_learned[(lp.method, lp.seed)]]
+        shown = [r for lp in finals if lp.seed == 0 for r in episodes[lp.spec.name]] + base_results
+        shown_ref = ref_results + [r for lp in finals if lp.seed == 0 for r in ref_learned[(lp.method, lp.seed)]]
+        main_paths = self._grid_outputs("main", main_results, shown, grid)
+        ref_paths = self._grid_outputs("reference", reference_results, shown_ref, ref_grid)
+        rows = summarize(self.task.name, main_results) + summarize(self.task.name, reference_results)
+
+        success = {lp: _success_rate(episodes[lp.spec.name]) for lp in learned}
+        methods = {
+            m: method_statistics(
+                m,
+                {(lp.seed, lp.budget): s for lp, s in success.items() if lp.method == m},
+                {s: _success_rate(ref_learned[(m, s)]) for s in range(p.seeds)},
+                [errors[(m, s)] for s in range(p.seeds)],
+                p.seeds,
+                p.budgets,
+            )
+            for m in p.methods
+        }
+        if REFERENCE_METHOD in methods:
+            for m in p.methods:
+                if m != REFERENCE_METHOD:
+                    methods[m]["vs_closed_loop"] = paired_success_comparison(
+                        methods[m]["success"], methods[REFERENCE_METHOD]["success"]
+                    )
+        baselines = {
+            name: _success_rate([r for r in base_results + ref_results if r.policy == name])
+            for name in dict.fromkeys(r.policy for r in base_results + ref_results)
+        }
+        summary = {
+            "methods": methods,
+            "baselines": baselines,
+            "reference_method": REFERENCE_METHOD if REFERENCE_METHOD in methods else None,
+            "budgets": list(p.budgets),
+            "seeds": p.seeds,
+            "grid": grid,
+            "reference_grid": ref_grid,
+            "policies": rows,
+        }
+        atomic_write_text(self.out / "closed_loop" / "summary.json", json.dumps(summary, indent=2, allow_nan=True))
+        n, m = grid["shape"]
+        plot_success_vs_solves(
+            methods,
+            self.out / "success_vs_solves.png",
+            references={
+                f"full-horizon MPC ({ref_grid['shape'][0]} x {ref_grid['shape'][1]} reference grid)": baselines.get(
+                    "full-horizon MPC", math.nan
+                ),
+                "LQR": baselines.get("LQR", math.nan),
+            },
+            title=f"{self.task.name}: closed-loop success on the {n} x {m} grid vs solves per network "
+            f"(median, 25-75 % band over {p.seeds} seeds)",
+        )
+        figures = [
+            ("success_vs_solves.png", "Grid success vs solves per network: median and 25-75 % band over seeds"),
+            (str(main_paths["heatmap"].relative_to(self.out)), _heatmap_caption(self.task.name, grid)),
+            (str(ref_paths["heatmap"].relative_to(self.out)), "The same on the coarser reference grid (seed 0)"),
+        ]
         if "trajectories" in main_paths:
             figures.append((str(main_paths["trajectories"].relative_to(self.out)), "Glider trajectories (Fig. 3)"))
-        summary = {"policies": rows, "grid": grid, "reference_grid": ref_grid}
-        atomic_write_text(self.out / "closed_loop" / "summary.json", json.dumps(summary, indent=2, allow_nan=True))
-        return {"rows": rows, "figures": figures}
+        report_policies = [lp.spec.name for lp in finals] + [r.policy for r in reference_results + base_results]
+        return {
+            "rows": rows,
+            "report_policies": list(dict.fromkeys(report_policies)),
+            "methods": methods,
+            "baselines": baselines,
+            "figures": figures,
+        }
 
+    def _grid_outputs(self, name: str, results: list[Any], shown: list[Any], grid: dict[str, Any]) -> dict[str, Path]:
+        """Tables of every episode on one grid (queries left out) and the heatmap of the ``shown`` policies."""
+        from seagul_control.evaluation import plot_heatmaps, write_outputs
+
+        out = self.out / "closed_loop" / name
+        paths = write_outputs(out, self.task.name, [replace(r, queries=[]) for r in results], None, {"grid": grid})
+        paths["heatmap"] = plot_heatmaps(self.task.name, shown, grid, out / "heatmap.png")
+        return paths
+
+    # -------------------------------------------------------------------------------------------------- report
     def write_report(self, runs: dict[str, Any], learning: dict[str, Any], closed_loop: dict[str, Any]) -> Path:
         """``report.md`` and ``report.html`` with the figures, tables, settings, timings and versions."""
         from seagul_learn.report import Section, Table, library_versions, machine_description, write_report
 
         p = self.preset
-        c_initial = PairedComparison(**learning["mse_initial"]["comparison"])
-        c_all = PairedComparison(**learning["mse_all_knots"]["comparison"])
         validation = json.loads((self.out / "validation.json").read_text())
-        headline = (
-            f"At {p.budget} solves per network over {p.seeds} paired seeds, SEAGuL's validation error at the "
-            f"starts (`mse_initial`) is **{c_initial.ratio_median:.2f}x** the uniform baseline's (median of per-seed "
-            f"ratios; adversarial better on {c_initial.win_fraction:.0%} of seeds, Wilcoxon p = "
-            f"{c_initial.p_value:.3g}); over every per-knot label (`mse_all_knots`) the ratio is "
-            f"**{c_all.ratio_median:.2f}x** (better on {c_all.win_fraction:.0%} of seeds, p = {c_all.p_value:.3g})."
-        )
+        methods = closed_loop["methods"]
+        shown = set(closed_loop["report_policies"])  # the per-budget rows are in closed_loop/summary.json
+        final_rows = [row for row in closed_loop["rows"] if row["policy"] in shown]
+        names = ", ".join(f"{method_label(m)} (`{m}`)" for m in p.methods)
         sections = [
-            Section("Summary", [headline, closed_loop_headline(self.task.name, closed_loop["rows"])]),
+            Section(
+                "Summary",
+                [
+                    learning_headline(learning, p.methods, p.budget, p.seeds),
+                    closed_loop_headline(self.task.name, methods, closed_loop["baselines"], p.seeds),
+                ],
+            ),
             Section(
                 "Value-function learning (paper Fig. 1 / Fig. 3 left)",
                 [
-                    "Both samplers start from identical network parameters (pretrained on the same random solves), "
-                    "spend the same number of solves and take the same number of training steps "
-                    f"({learning['train_steps']} after pretraining); adversarial chains start from the uniform "
-                    "baseline's starts. Validation: "
+                    f"Methods: {names}. Every method of a seed starts from identical network parameters (pretrained "
+                    "on the same random solves), spends the same number of solves and takes the same number of "
+                    f"training steps ({learning['train_steps']} after pretraining); adversarial chains start from the "
+                    "uniform baseline's starts; the closed-loop method solves tail problems at the deployed MPC's "
+                    "planned terminal states (with Sobolev training). Validation: "
                     f"{validation['solves']} solves ({validation['failures']} failed and are excluded).",
                 ],
                 [
                     Table(
                         [
                             "metric",
-                            "adversarial (median)",
+                            "method",
+                            "method (median)",
                             "uniform (median)",
                             "ratio (median per seed)",
-                            "adversarial wins",
+                            "method wins",
                             "Wilcoxon p",
                         ],
-                        comparison_rows(learning),
+                        comparison_rows(learning, p.methods),
                     )
                 ],
                 [("validation_curves.png", "Validation MSE vs solves: median and 25-75 % band over seeds")],
@@ -441,33 +773,58 @@ class Experiment:
             Section(
                 "Closed loop (paper Fig. 2 / Fig. 3 centre / Fig. 4)",
                 [
-                    f"Limited-lookahead MPC with {p.mpc_horizon} steps and each sampler's seed-0 network as terminal "
-                    "cost, next to clipped LQR"
+                    f"Limited-lookahead MPC with {p.mpc_horizon} steps and each network as terminal cost, for every "
+                    f"seed of every method, next to clipped LQR"
                     + (", PPO" if self.config.ppo_model else "")
-                    + " and the full-horizon MPC (on a coarser grid: it solves the whole problem at every step). "
-                    "Step times are per MPC solve inside the closed loop; fallback steps are steps whose action did "
-                    "not come from a converged solve.",
+                    + " and the full-horizon MPC (on a coarser reference grid: it solves the whole problem at every "
+                    "step; every final network runs there too). Success: fraction of grid starts "
+                    f"({'||x(5 s) - x*|| < 0.05' if self.task.name == 'acrobot' else 'perched'}) at "
+                    f"{p.budget} solves per network, median and quartiles over {p.seeds} seeds. Query error: "
+                    f"`|Vhat - V|` at {p.query_samples} of the final MPC's planned terminal states per seed, "
+                    "re-solved as tail problems (median and p95 per seed, then the median over seeds).",
+                    "Paired tests against the closed-loop method: per-seed differences of the success rate "
+                    "(Wilcoxon signed-rank; n/a with fewer than 2 seeds or all differences 0).",
                 ],
                 [
                     Table(
+                        [
+                            "method",
+                            "success median",
+                            "q25-q75",
+                            "per seed",
+                            "query error median",
+                            "query error p95",
+                            "validation mse_all_knots median",
+                        ],
+                        method_rows(methods, learning),
+                    ),
+                    Table(
+                        ["method", "vs", "median difference", "wins", "losses", "Wilcoxon p"],
+                        paired_rows(methods),
+                    ),
+                    Table(
                         list(CLOSED_LOOP_COLUMNS),
-                        [[row.get(c, "") for c in CLOSED_LOOP_COLUMNS] for row in closed_loop["rows"]],
-                    )
+                        [[row.get(c, "") for c in CLOSED_LOOP_COLUMNS] for row in final_rows],
+                    ),
                 ],
                 closed_loop["figures"],
             ),
             Section(
                 "Solver failures",
                 [
-                    f"Failed training solves (counted against the budget, never trained on): "
-                    f"adversarial {learning['failures']['adversarial']}, uniform {learning['failures']['uniform']}."
+                    "Failed training solves (counted against the budget, never trained on): "
+                    + ", ".join(f"{method_label(m)} {learning['failures'][m]}" for m in p.methods)
+                    + "."
                 ],
             ),
             Section(
                 "Settings",
                 [
                     f"Task `{self.task.name}`, preset `{self.config.preset}`, workers {self.config.workers}, "
-                    f"backend `{self.config.backend}`. Run directory: `{self.out}`."
+                    f"backend `{self.config.backend}`. Run directory: `{self.out}`. TrainConfig overrides of the "
+                    "methods (`METHODS`; the preset's `train_overrides` below come on top): "
+                    + "; ".join(f"`{m}`: {METHODS[m]}" for m in p.methods)
+                    + "."
                 ],
                 [Table(["setting", "value"], [[k, v] for k, v in asdict(p).items()])],
             ),
@@ -478,7 +835,8 @@ class Experiment:
             ),
             Section("Library versions", tables=[Table(["library", "version"], list(library_versions().items()))]),
         ]
-        return write_report(self.out, f"SEAGuL vs uniform sampling: {self.task.name}", sections)
+        title = f"Learning value functions for MPC ({', '.join(method_label(m) for m in p.methods)}): {self.task.name}"
+        return write_report(self.out, title, sections)
 
 
 def _train_one(config: Any, out: Path, cache: Path, workers: int = 1, backend: str = "local") -> None:
@@ -496,44 +854,250 @@ def _train_one(config: Any, out: Path, cache: Path, workers: int = 1, backend: s
     train(config, out, resume=(out / "config.json").is_file(), batch_solver=solver, solver_name=key)
 
 
+def _slug(name: str) -> str:
+    return "".join(ch if ch.isalnum() else "-" for ch in name.lower())
+
+
+def _tail_multiple(task: Any, tau: float, stride: int) -> bool:
+    """Whether the tail problem from time to go ``tau`` has a multiple of ``stride`` intervals."""
+    from seagul_learn.closed_loop import snap_tau
+    from seagul_learn.solving import tail_horizon
+
+    try:
+        k = tail_horizon(task, snap_tau(task, tau))
+    except ValueError:
+        return False
+    return k is None or k % stride == 0
+
+
+def _success_rate(episodes: Sequence[Any]) -> float:
+    return float(np.mean([e.success for e in episodes])) if episodes else math.nan
+
+
+def _nanmedian(values: Sequence[float]) -> float:
+    finite = [float(v) for v in values if v is not None and math.isfinite(float(v))]
+    return float(np.median(finite)) if finite else math.nan
+
+
+# ------------------------------------------------------------------------------------------------- statistics
+def paired_success_comparison(method: Sequence[float], reference: Sequence[float]) -> dict[str, Any]:
+    """Paired per-seed success rates (higher is better) of a method against a reference method.
+
+    Returns ``median_difference`` (median of ``method - reference``), ``wins``/``losses``/``ties`` (seeds where the
+    method's rate is higher/lower/equal), ``p_value`` (two-sided Wilcoxon signed-rank test on the differences; NaN
+    with fewer than 2 seeds or when every difference is 0) and ``seeds``.
+    """
+    a = np.asarray(method, dtype=float)
+    b = np.asarray(reference, dtype=float)
+    if a.shape != b.shape or a.ndim != 1 or a.size == 0:
+        raise ValueError(f"need two equally long, non-empty lists of per-seed success rates, got {a.shape}, {b.shape}")
+    diff = a - b
+    p = math.nan
+    if a.size >= 2 and np.any(diff != 0):
+        from scipy.stats import wilcoxon
+
+        p = float(wilcoxon(diff).pvalue)
+    return {
+        "median_difference": float(np.median(diff)),
+        "wins": int(np.sum(diff > 0)),
+        "losses": int(np.sum(diff < 0)),
+        "ties": int(np.sum(diff == 0)),
+        "p_value": p,
+        "seeds": int(a.size),
+    }
+
+
+def method_statistics(
+    method: str,
+    success: Mapping[tuple[int, int], float],
+    reference_success: Mapping[int, float],
+    query_errors: Sequence[Mapping[str, Any]],
+    seeds: int,
+    budgets: Sequence[int],
+) -> dict[str, Any]:
+    """One method's closed-loop statistics over seeds (an entry of ``closed_loop/summary.json``'s ``methods``).
+
+    ``success`` maps ``(seed, budget)`` to the main-grid success rate, ``reference_success`` a seed to its final
+    network's rate on the reference grid; ``query_errors`` are the per-seed
+    :class:`~seagul_learn.closed_loop.QueryError` dicts. Keys: ``label``, ``policy``, ``success`` (per seed, full
+    budget), ``success_median``/``success_q25``/``success_q75``/``success_min``/``success_max``,
+    ``reference_success`` (per seed), ``curve`` (``budgets``, ``median``, ``q25``, ``q75``, ``per_seed``
+    ``[seed][budget]``) and ``query_error`` (``median`` and ``p95``: medians over seeds of the per-seed values;
+    ``per_seed``).
+    """
+    per_seed = np.array([[success[(s, b)] for b in budgets] for s in range(seeds)], dtype=float)
+    final = per_seed[:, -1]
+    q25, q75 = np.percentile(final, [25, 75])
+    lo, hi = np.percentile(per_seed, [25, 75], axis=0)
+    return {
+        "label": method_label(method),
+        "policy": f"{method_label(method)} MPC",
+        "success": final.tolist(),
+        "success_median": float(np.median(final)),
+        "success_q25": float(q25),
+        "success_q75": float(q75),
+        "success_min": float(np.min(final)),
+        "success_max": float(np.max(final)),
+        "reference_success": [float(reference_success[s]) for s in range(seeds)],
+        "curve": {
+            "budgets": [int(b) for b in budgets],
+            "median": np.median(per_seed, axis=0).tolist(),
+            "q25": lo.tolist(),
+            "q75": hi.tolist(),
+            "per_seed": per_seed.tolist(),
+        },
+        "query_error": {
+            "median": _nanmedian([e["median"] for e in query_errors]),
+            "p95": _nanmedian([e["p95"] for e in query_errors]),
+            "per_seed": [dict(e) for e in query_errors],
+        },
+    }
+
+
+def plot_success_vs_solves(
+    methods: Mapping[str, Mapping[str, Any]],
+    path: str | Path,
+    references: Mapping[str, float] | None = None,
+    title: str = "",
+) -> None:
+    """Grid success (%) vs solves per network: median and 25-75 % band over seeds per method (from
+    :func:`method_statistics`), a horizontal line per reference controller (matplotlib Agg)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, ax = plt.subplots(figsize=(7.5, 4.4), constrained_layout=True)
+    ax.set_xticks(sorted({int(b) for stats in methods.values() for b in stats["curve"]["budgets"]}))
+    for stats in methods.values():
+        curve = stats["curve"]
+        xs = np.asarray(curve["budgets"])
+        (line,) = ax.plot(xs, 100 * np.asarray(curve["median"]), marker="o", ms=4, label=stats["policy"])
+        ax.fill_between(
+            xs, 100 * np.asarray(curve["q25"]), 100 * np.asarray(curve["q75"]), color=line.get_color(), alpha=0.15
+        )
+    for (name, rate), style in zip((references or {}).items(), ("--", ":", "-."), strict=False):
+        if math.isfinite(rate):
+            ax.axhline(100 * rate, color="k", ls=style, lw=1, label=f"{name}: {rate:.0%}")
+    ax.set_xlabel("solves per network")
+    ax.set_ylabel("grid success (%)")
+    ax.set_ylim(-3, 103)
+    ax.grid(True, alpha=0.3)
+    ax.legend(fontsize=8)
+    ax.set_title(title, fontsize=9)
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+
+
+# ----------------------------------------------------------------------------------------------------- report
 CLOSED_LOOP_COLUMNS = (
     "policy", "episodes", "success_rate", "median_final_distance", "mean_cost", "crashes",
     "median_step_ms", "p95_step_ms", "fallback_steps",
 )  # fmt: skip
 
 
-def closed_loop_headline(task_name: str, rows: list[dict[str, Any]]) -> str:
-    """One sentence with every policy's success rate."""
+def _pct(rate: float) -> str:
+    return f"{rate:.0%}" if math.isfinite(rate) else "n/a"
+
+
+def learning_headline(learning: Mapping[str, Any], methods: Sequence[str], budget: int, seeds: int) -> str:
+    """One paragraph: each method's validation error relative to the uniform baseline, on both metrics."""
+    parts = []
+    for metric in METRICS:
+        what = "at the starts (`mse_initial`)" if metric == "mse_initial" else f"over every per-knot label (`{metric}`)"
+        items = []
+        for m in methods:
+            if m == BASELINE_METHOD:
+                continue
+            c = PairedComparison(**learning[metric]["vs_uniform"][m])
+            items.append(
+                f"{method_label(m)} **{c.ratio_median:.2f}x** (better on {c.win_fraction:.0%} of seeds, Wilcoxon "
+                f"p = {c.p_value:.3g})"
+            )
+        parts.append(f"{what}: " + ", ".join(items))
+    return (
+        f"At {budget} solves per network over {seeds} paired seeds, validation error relative to the uniform "
+        "baseline (median of per-seed ratios) " + "; ".join(parts) + "."
+    )
+
+
+def closed_loop_headline(
+    task_name: str, methods: Mapping[str, Mapping[str, Any]], baselines: Mapping[str, float], seeds: int
+) -> str:
+    """One paragraph: each method's closed-loop success (median over seeds with the range), query error, baselines."""
     what = "reach the goal (||x(5 s) - x*|| < 0.05)" if task_name == "acrobot" else "perch"
-    rates = ", ".join(f"{row['policy']} {row['success_rate']:.0%}" for row in rows)
-    return f"Closed loop: fraction of grid starts from which each controller manages to {what}: {rates}."
+    rates = ", ".join(
+        f"{s['policy']} **{_pct(s['success_median'])}** ({_pct(s['success_min'])}-{_pct(s['success_max'])})"
+        for s in methods.values()
+    )
+    others = ", ".join(f"{name} {_pct(rate)}" for name, rate in baselines.items())
+    errors = ", ".join(
+        f"{s['label']} {s['query_error']['median']:.3g} (p95 {s['query_error']['p95']:.3g})" for s in methods.values()
+    )
+    return (
+        f"Closed loop: fraction of grid starts from which each controller manages to {what}, median over {seeds} "
+        f"seeds (range): {rates}; {others} (the full-horizon MPC on the reference grid). Planner-query error "
+        f"|Vhat - V| at the MPC's planned terminal states (median over seeds): {errors}."
+    )
 
 
-def _relabel(spec: Any, suffix: str) -> Any:
-    return replace(spec, label=spec.name + suffix)
+def method_rows(methods: Mapping[str, Mapping[str, Any]], learning: Mapping[str, Any]) -> list[list[Any]]:
+    """Report rows: method, success median, q25-q75, per seed, query error median and p95, validation MSE median."""
+    rows = []
+    for m, s in methods.items():
+        rows.append(
+            [
+                s["policy"],
+                _pct(s["success_median"]),
+                f"{_pct(s['success_q25'])}-{_pct(s['success_q75'])}",
+                ", ".join(_pct(v) for v in s["success"]),
+                float(s["query_error"]["median"]),
+                float(s["query_error"]["p95"]),
+                float(np.median(learning["mse_all_knots"][m])),
+            ]
+        )
+    return rows
+
+
+def paired_rows(methods: Mapping[str, Mapping[str, Any]]) -> list[list[Any]]:
+    """Report rows of the paired success tests against the closed-loop method."""
+    rows = []
+    for s in methods.values():
+        c = s.get("vs_closed_loop")
+        if c is not None:
+            vs = methods[REFERENCE_METHOD]["policy"]
+            rows.append([s["policy"], vs, f"{c['median_difference']:+.0%}", c["wins"], c["losses"], c["p_value"]])
+    return rows
 
 
 def _heatmap_caption(task_name: str, grid: dict[str, Any]) -> str:
     n1, n2 = grid["shape"]
     if task_name == "acrobot":
-        return f"Final distance to the goal after 5 s over a {n1} x {n2} grid of (th1, th2) at zero velocity (Fig. 2)"
-    return f"Trajectory cost over a {n1} x {n2} grid of (x, z) starts (Fig. 4)"
+        return (
+            f"Final distance to the goal after 5 s over a {n1} x {n2} grid of (th1, th2) at zero velocity, seed-0 "
+            "networks (Fig. 2)"
+        )
+    return f"Trajectory cost over a {n1} x {n2} grid of (x, z) starts, seed-0 networks (Fig. 4)"
 
 
-def comparison_rows(learning: dict[str, Any]) -> list[list[Any]]:
-    """Report table rows: metric, median adversarial, median uniform, ratio, wins, p."""
+def comparison_rows(learning: Mapping[str, Any], methods: Sequence[str]) -> list[list[Any]]:
+    """Report table rows per metric and method: medians of the method and the baseline, ratio, wins, p."""
     rows = []
     for metric in METRICS:
         block = learning[metric]
-        c = PairedComparison(**block["comparison"])
-        rows.append(
-            [
-                metric,
-                float(np.median(block["adversarial"])),
-                float(np.median(block["uniform"])),
-                c.ratio_median,
-                f"{c.win_fraction:.0%}",
-                c.p_value,
-            ]
-        )
+        for m in methods:
+            if m == BASELINE_METHOD:
+                continue
+            c = PairedComparison(**block["vs_uniform"][m])
+            rows.append(
+                [
+                    metric,
+                    method_label(m),
+                    float(np.median(block[m])),
+                    float(np.median(block[BASELINE_METHOD])),
+                    c.ratio_median,
+                    f"{c.win_fraction:.0%}",
+                    c.p_value,
+                ]
+            )
     return rows

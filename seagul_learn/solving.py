@@ -13,6 +13,7 @@ import functools
 import hashlib
 import json
 import os
+import sys
 import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import fields
@@ -127,7 +128,7 @@ def solver_key(solver_options: dict[str, Any] | None) -> str:
 
 @functools.cache
 def solver_fingerprint() -> str:
-    """Short hash of the source of the modules that define a solve (optimizer, transcription, tasks).
+    """Short hash of the source of the modules that define a solve (optimizer, tail defaults, transcription, tasks).
 
     Computed once per process, from the files of the modules this process imported.
     """
@@ -140,6 +141,7 @@ def solver_fingerprint() -> str:
     digest = hashlib.sha256()
     for module in (
         seagul_learn.trajopt,
+        sys.modules[__name__],  # the tail-solver defaults live here
         seagul_control.transcription,
         seagul_envs.tasks.base,
         seagul_envs.tasks.acrobot,

@@ -144,8 +144,9 @@ class TrainConfig:
     """Closed-loop: MPC episodes per round (training starts from X0, never the evaluation grid)."""
     cl_horizon: int = 0
     """Closed-loop: lookahead steps of the collecting MPC (0 = the task's default, as deployed)."""
-    cl_trust_region: str = "none"
-    """Closed-loop: guard of the collecting (deployed) MPC after the warm-up rounds."""
+    cl_trust_region: str = "lqr"
+    """Closed-loop: guard of the collecting MPC after the warm-up rounds; collect with the guard you deploy
+    (``LimitedLookaheadMPC``'s default is ``"lqr"``)."""
     cl_warmup_rounds: int = 1
     """Closed-loop: first rounds collect with the ``"lqr"``-guarded MPC (teachable queries)."""
     cl_selection: str = "farthest"
@@ -223,6 +224,12 @@ class TrainConfig:
             raise ValueError(f"value_cap must be a number >= 0 (0 = off), got {self.value_cap}")
         if any(b < 1 for b in self.snapshots):
             raise ValueError(f"snapshots must be budgets >= 1, got {list(self.snapshots)}")
+        unreachable = [b for b in self.snapshots if b != self.budget and (b % self.solves_per_round or b > self.budget)]
+        if unreachable:
+            raise ValueError(
+                f"snapshots {unreachable} are not round boundaries: a snapshot is taken after a round, so it must be "
+                f"a multiple of solves_per_round ({self.solves_per_round}) up to the budget ({self.budget})"
+            )
 
     def closed_loop_options(self) -> ClosedLoopOptions:
         """The closed-loop sampler's options from the ``cl_*`` fields."""

@@ -60,6 +60,9 @@ def test_options_reject_bad_values():
         TrainConfig(sampler="closed-loop", cl_tail_stride=0)
     with pytest.raises(ValueError, match="value_cap"):
         TrainConfig(value_cap=-1.0)
+    with pytest.raises(ValueError, match="round boundaries"):
+        TrainConfig(budget=50, solves_per_round=10, snapshots=(25,))
+    TrainConfig(budget=55, solves_per_round=10, snapshots=(20, 55))  # multiples of the round, and the budget
 
 
 def _net(task, seed=0):
@@ -107,6 +110,7 @@ def _cl_config(tmp_path, **overrides) -> TrainConfig:
         cl_uniform_fraction=0.34,
         cl_uniform_solves=6,
         cl_warmup_rounds=1,
+        cl_trust_region="none",
         seed=0,
         cache_dir=str(tmp_path / "cache"),
         progress=False,

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import signal
 import subprocess
@@ -36,16 +37,61 @@ def test_reproduce_writes_report_with_figures_and_tables(smoke_run: tuple[Path, 
     text = report.read_text()
     for heading in ("## Summary", "## Value-function learning", "## Closed loop", "## Timings", "## Library versions"):
         assert heading in text
-    for policy in ("SEAGuL MPC", "uniform MPC", "LQR", "full-horizon MPC"):
+    # The per-method table, the per-seed policy rows and the baselines.
+    for policy in ("SEAGuL MPC", "uniform MPC", "closed-loop MPC", "LQR", "full-horizon MPC"):
         assert f"| {policy} |" in text
-    for figure in ("validation_curves.png", "closed_loop/main/heatmap.png", "closed_loop/reference/heatmap.png"):
+    for seed in (0, 1):
+        for policy in ("SEAGuL MPC", "uniform MPC", "closed-loop MPC"):
+            assert f"| {policy} (seed {seed}) |" in text
+    figures = (
+        "validation_curves.png",
+        "success_vs_solves.png",
+        "closed_loop/main/heatmap.png",
+        "closed_loop/reference/heatmap.png",
+    )
+    for figure in figures:
         assert f"]({figure})" in text
         assert (out / figure).stat().st_size > 1000
     assert "data:image/png;base64," in (out / "report.html").read_text()
     learning = json.loads((out / "learning.json").read_text())
-    assert len(learning["mse_initial"]["adversarial"]) == len(learning["mse_initial"]["uniform"]) == 2
+    for method in ("uniform", "adversarial", "closed-loop"):
+        assert len(learning["mse_initial"][method]) == len(learning["mse_all_knots"][method]) == 2
+    assert set(learning["mse_initial"]["vs_uniform"]) == {"adversarial", "closed-loop"}
     stored = json.loads((out / "experiment.json").read_text())
     assert {"validation set", "training", "closed-loop evaluation", "total"} <= set(stored["timings"])
+
+
+def test_summary_has_per_seed_statistics_of_every_method(smoke_run: tuple[Path, str]) -> None:
+    out, _ = smoke_run
+    summary = json.loads((out / "closed_loop" / "summary.json").read_text())
+    seeds, budgets = summary["seeds"], summary["budgets"]
+    assert seeds == 2 and budgets == [2, 4]
+    assert set(summary["methods"]) == {"uniform", "adversarial", "closed-loop"}
+    for method, stats in summary["methods"].items():
+        assert len(stats["success"]) == len(stats["reference_success"]) == seeds
+        assert all(0.0 <= s <= 1.0 for s in stats["success"])
+        assert stats["success_q25"] <= stats["success_median"] <= stats["success_q75"]
+        assert stats["curve"]["budgets"] == budgets and len(stats["curve"]["median"]) == len(budgets)
+        assert [row[-1] for row in stats["curve"]["per_seed"]] == stats["success"]
+        errors = stats["query_error"]
+        assert len(errors["per_seed"]) == seeds
+        assert all(e["sampled"] >= 1 and e["available"] >= e["sampled"] for e in errors["per_seed"])
+        # NaN only if every re-solve failed (no reference value to compare with)
+        assert math.isfinite(errors["median"]) or all(e["failed"] == e["sampled"] for e in errors["per_seed"])
+        assert not math.isfinite(errors["median"]) or errors["p95"] >= 0
+        if method == "closed-loop":
+            assert "vs_closed_loop" not in stats
+        else:
+            c = stats["vs_closed_loop"]
+            assert c["seeds"] == seeds and c["wins"] + c["losses"] + c["ties"] == seeds
+    assert {"LQR", "full-horizon MPC"} <= set(summary["baselines"])
+    # Every snapshot network of every seed ran on the main grid; the per-budget networks exist.
+    policies = {row["policy"] for row in summary["policies"]}
+    for seed in range(seeds):
+        assert f"closed-loop MPC (seed {seed}, 2 solves)" in policies
+        assert (out / "train" / f"closed-loop-seed{seed}" / "network_2.pt").is_file()
+    text = (out / "report.md").read_text()
+    assert "query error" in text and "](success_vs_solves.png)" in text
 
 
 def test_reproduce_refuses_to_overwrite_and_checks_resume_dir(smoke_run: tuple[Path, str], tmp_path: Path) -> None:
@@ -63,6 +109,21 @@ def test_resume_of_finished_run_changes_nothing(smoke_run: tuple[Path, str]) -> 
     assert main(["reproduce", "acrobot", "--resume", str(out), "--no-progress"]) == 0
     after = (out / "learning.json").read_text(), (out / "closed_loop" / "summary.json").read_text()
     assert before == after
+
+
+def test_finished_run_without_a_snapshot_is_retrained_to_the_same_weights(smoke_run: tuple[Path, str]) -> None:
+    # SIGKILL between a round's checkpoint and its snapshot leaves a run that resumes past the snapshot.
+    out, _ = smoke_run
+    import torch
+
+    snapshot = out / "train" / "uniform-seed1" / "network_2.pt"
+    before = torch.load(snapshot, weights_only=True)["state_dict"]
+    learning = (out / "learning.json").read_text()
+    snapshot.unlink()
+    assert main(["reproduce", "acrobot", "--resume", str(out), "--no-progress"]) == 0
+    after = torch.load(snapshot, weights_only=True)["state_dict"]
+    assert before.keys() == after.keys() and all(torch.equal(before[k], after[k]) for k in before)
+    assert (out / "learning.json").read_text() == learning
 
 
 def _strip_times(summary: dict) -> dict:

@@ -1,4 +1,5 @@
-"""``seagul reproduce``: the paper's experiment for one task end to end, with a report (see
+"""``seagul reproduce``: the paper's experiment for one task end to end: uniform, adversarial (SEAGuL) and
+closed-loop value-function learning over paired seeds, closed-loop MPC statistics for every seed, and a report (see
 :mod:`seagul_learn.experiment`)."""
 
 from __future__ import annotations
@@ -57,7 +58,8 @@ def run(args: argparse.Namespace) -> int:
 
 COMMAND = Command(
     name="reproduce",
-    help="run the paper's experiment for a task (validation, SEAGuL vs uniform, MPC evaluation) and write a report",
+    help="run the paper's experiment for a task (uniform vs SEAGuL vs closed-loop learning, per-seed MPC "
+    "evaluation) and write a report",
     add_arguments=add_arguments,
     run=run,
 )
