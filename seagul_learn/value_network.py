@@ -171,18 +171,8 @@ class ValueNetwork(nn.Module):
     # -------------------------------------------------------------------- i/o
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the network to ``path`` atomically (temp file + rename); returns the path."""
-        path = Path(path)
-        payload = {
-            "format": FORMAT_TAG,
-            "version": FORMAT_VERSION,
-            "task_name": self.task_name,
-            "config": {"nx": self.config.nx, "hidden": list(self.config.hidden)},
-            "state_dict": {k: v.detach().clone() for k, v in self.state_dict().items()},
-        }
-        buffer = io.BytesIO()
-        torch.save(payload, buffer)
-        atomic_write_bytes(path, buffer.getvalue())
-        return path
+        config = {"nx": self.config.nx, "hidden": list(self.config.hidden)}
+        return _write_file(path, FORMAT_TAG, self.task_name, config, self)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> ValueNetwork:
@@ -203,11 +193,7 @@ class ValueNetwork(nn.Module):
             return ValueEnsemble._from_payload(payload, path)  # type: ignore[return-value]
         if not isinstance(payload, dict) or payload.get("format") != FORMAT_TAG:
             raise ValueNetworkFileError(f"{str(path)!r} is not a seagul value network file (no {FORMAT_TAG!r} tag)")
-        if payload.get("version") != FORMAT_VERSION:
-            raise ValueNetworkFileError(
-                f"{str(path)!r} has value-network format version {payload.get('version')!r}; "
-                f"this seagul reads version {FORMAT_VERSION}"
-            )
+        _check_version(payload, path)
         try:
             config = payload["config"]
             net = cls(nx=int(config["nx"]), hidden=tuple(config["hidden"]), task_name=str(payload["task_name"]))
@@ -321,31 +307,17 @@ class ValueEnsemble(nn.Module):
     # -------------------------------------------------------------------- i/o
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the ensemble to ``path`` atomically; :meth:`ValueNetwork.load` reads it back."""
-        path = Path(path)
-        payload = {
-            "format": ENSEMBLE_FORMAT_TAG,
-            "version": FORMAT_VERSION,
-            "task_name": self.task_name,
-            "config": {
-                "nx": self.config.nx,
-                "hidden": list(self.config.hidden),
-                "members": len(self.members),
-                "pessimism": self.pessimism,
-            },
-            "state_dict": {k: v.detach().clone() for k, v in self.state_dict().items()},
+        config = {
+            "nx": self.config.nx,
+            "hidden": list(self.config.hidden),
+            "members": len(self.members),
+            "pessimism": self.pessimism,
         }
-        buffer = io.BytesIO()
-        torch.save(payload, buffer)
-        atomic_write_bytes(path, buffer.getvalue())
-        return path
+        return _write_file(path, ENSEMBLE_FORMAT_TAG, self.task_name, config, self)
 
     @classmethod
     def _from_payload(cls, payload: dict[str, Any], path: Path) -> ValueEnsemble:
-        if payload.get("version") != FORMAT_VERSION:
-            raise ValueNetworkFileError(
-                f"{str(path)!r} has value-network format version {payload.get('version')!r}; "
-                f"this seagul reads version {FORMAT_VERSION}"
-            )
+        _check_version(payload, path)
         try:
             c = payload["config"]
             ens = cls(
@@ -364,6 +336,32 @@ class ValueEnsemble(nn.Module):
 
     def extra_repr(self) -> str:
         return f"task={self.task_name!r}, members={len(self.members)}, pessimism={self.pessimism}"
+
+
+def _write_file(
+    path: str | os.PathLike[str], tag: str, task_name: str, config: dict[str, Any], module: nn.Module
+) -> Path:
+    """One ``torch.save`` dict (tensors and builtins only: loads with ``weights_only=True``), written atomically."""
+    path = Path(path)
+    payload = {
+        "format": tag,
+        "version": FORMAT_VERSION,
+        "task_name": task_name,
+        "config": config,
+        "state_dict": {k: v.detach().clone() for k, v in module.state_dict().items()},
+    }
+    buffer = io.BytesIO()
+    torch.save(payload, buffer)
+    atomic_write_bytes(path, buffer.getvalue())
+    return path
+
+
+def _check_version(payload: dict[str, Any], path: Path) -> None:
+    if payload.get("version") != FORMAT_VERSION:
+        raise ValueNetworkFileError(
+            f"{str(path)!r} has value-network format version {payload.get('version')!r}; "
+            f"this seagul reads version {FORMAT_VERSION}"
+        )
 
 
 _ENSEMBLE_CACHE: dict[tuple[int, tuple[int, ...], int], ca.Function] = {}
