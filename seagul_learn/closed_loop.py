@@ -85,6 +85,13 @@ class ClosedLoopOptions:
     pretraining solves plans into states with values of 1e4 and more, which teach nothing)."""
     jit: bool = True
     """Compile the collecting MPC (as deployed); False solves it interpreted (tests)."""
+    solver: str = "ipopt"
+    """Solver of the collecting MPC: the same NLP as deployed, solved by IPOPT with a wall-time limit per step
+    (``max_step_time``). The deployed default, fatrop, looped without end inside single solves from shifted warm
+    starts at the extreme states closed-loop training visits (docs/closed_loop.md); ``"fatrop"`` collects with it
+    anyway."""
+    max_step_time: float = 1.0
+    """IPOPT wall-time limit per collecting MPC step (s); a step that hits it falls back like any failed solve."""
 
     def __post_init__(self) -> None:
         if self.episodes < 1:
@@ -101,6 +108,10 @@ class ClosedLoopOptions:
             raise ValueError(f"closed-loop tail_stride must be >= 1, got {self.tail_stride}")
         if not 0.0 <= self.uniform_fraction <= 1.0:
             raise ValueError(f"closed-loop uniform_fraction must be in [0, 1], got {self.uniform_fraction}")
+        if self.solver not in ("ipopt", "fatrop"):
+            raise ValueError(f"closed-loop solver must be 'ipopt' or 'fatrop', got {self.solver!r}")
+        if not self.max_step_time > 0:
+            raise ValueError(f"closed-loop max_step_time must be > 0 s, got {self.max_step_time}")
         if self.uniform_solves < 0:
             raise ValueError(f"closed-loop uniform_solves must be >= 0, got {self.uniform_solves}")
 
@@ -233,7 +244,16 @@ class ClosedLoopSampler:
         horizon = self.options.horizon or default_horizon(self.task)
         mpc = self._mpcs.get(guard)
         if mpc is None:
-            mpc = LimitedLookaheadMPC(self.task, network, horizon, trust_region=guard, jit=self.options.jit)  # type: ignore[arg-type]
+            extra = {"ipopt.max_wall_time": self.options.max_step_time} if self.options.solver == "ipopt" else {}
+            mpc = LimitedLookaheadMPC(
+                self.task,
+                network,
+                horizon,
+                trust_region=guard,  # type: ignore[arg-type]
+                jit=self.options.jit,
+                solver=self.options.solver,  # type: ignore[arg-type]
+                solver_options=extra,
+            )
             self._mpcs[guard] = mpc
         else:
             mpc.set_value_function(network)
