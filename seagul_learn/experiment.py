@@ -220,8 +220,8 @@ PRESETS: dict[str, dict[str, Preset]] = {
             query_tail_stride=10,
         ),
         "quick": Preset(
-            # 4 seeds x budgets (20, 40, 60) x 10 x 10 grid took 26 min from a fresh clone with cold caches: every
-            # snapshot of every seed is a closed-loop evaluation. 3 seeds x 2 budgets x 8 x 8 cut that work by ~3x.
+            # 4 seeds x budgets (20, 40, 60) x 10 x 10 grid had not finished after 16 min from a fresh clone with cold
+            # caches: every snapshot of every seed is a closed-loop evaluation. 3 seeds x 2 budgets x 8 x 8 is ~1/3.
             seeds=3,
             budget=60,
             solves_per_round=10,
