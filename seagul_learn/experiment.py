@@ -555,7 +555,10 @@ class Experiment:
         from seagul_control.evaluation import PolicySpec
 
         p = self.preset
-        horizon = (("horizon", p.mpc_horizon),)
+        # IPOPT, not the MPC's default fatrop: fatrop looped without end inside single solves from shifted warm
+        # starts at extreme states (a fresh-clone quick run hung in this evaluation; docs/closed_loop.md). IPOPT's
+        # max_iter bounds every solve; its steps are slower, so step times here are IPOPT's.
+        horizon = (("horizon", p.mpc_horizon), ("solver", "ipopt"))
         out = []
         for method in p.methods:
             for seed in range(p.seeds):
