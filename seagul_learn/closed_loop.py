@@ -90,7 +90,7 @@ class ClosedLoopOptions:
     (``max_step_time``). The deployed default, fatrop, looped without end inside single solves from shifted warm
     starts at the extreme states closed-loop training visits (docs/closed_loop.md); ``"fatrop"`` collects with it
     anyway."""
-    max_step_time: float = 1.0
+    max_step_time: float = 5.0
     """IPOPT wall-time limit per collecting MPC step (s); a step that hits it falls back like any failed solve."""
 
     def __post_init__(self) -> None:
