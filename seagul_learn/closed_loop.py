@@ -213,7 +213,7 @@ class ClosedLoopSampler:
     def _check_tails(self) -> None:
         # The MPC's queries are tails of the full problem (tail_horizon raises for anything else).
         h = self.task.tau_nominal / self.task.num_steps
-        if abs(self.task.control_period - h) > 1e-9 and self.options.horizon is not None:
+        if abs(self.task.control_period - h) > 1e-9:
             raise ValueError(
                 f"{self.task.name}: the closed-loop sampler needs the MPC step ({self.task.control_period} s) to "
                 f"equal the transcription step ({h} s) so that its planned terminal states are tails"
@@ -346,11 +346,6 @@ class ClosedLoopSampler:
         self.log.append(entry)
         self.round += 1
         return records
-
-
-def options_dict(options: ClosedLoopOptions) -> dict[str, Any]:
-    """JSON-ready options."""
-    return asdict(options)
 
 
 # ------------------------------------------------------------------------------------------ planner-query error

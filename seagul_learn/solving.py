@@ -82,9 +82,9 @@ def trajopt_batch_solver(
 ) -> BatchSolver:
     """The real solver: ``solve_many`` on the full-horizon trajectory optimizer (imported lazily).
 
-    Requests whose ``tau`` is below T0 on a fixed-step task are tail problems (:func:`tail_horizon`): they are
-    grouped by their number of intervals and solved with ``horizon=k`` (one optimizer per ``k`` and worker, built
-    on first use and kept).
+    Requests whose ``tau`` is below T0 are tail problems (:func:`tail_horizon`): they are grouped by their number of
+    intervals and solved with ``horizon=k`` and :data:`TAIL_SOLVER_DEFAULTS` (one optimizer per ``k`` and worker,
+    built on first use and kept).
     """
     from seagul_envs import make_task
     from seagul_learn.parallel import solve_many  # the optimizer stack is only needed when actually solving
