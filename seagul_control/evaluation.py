@@ -36,9 +36,9 @@ from seagul_envs.tasks.base import Task
 ENV_IDS = {"acrobot": "SeagulAcrobot-v0", "glider": "SeagulGlider-v0"}
 """The env each task is evaluated in."""
 ACROBOT_SUCCESS_DISTANCE = 0.05
-"""Acrobot success: ``||x(5 s) - x*|| < 0.05`` (SPEC §2)."""
+"""Acrobot success: ``||x(5 s) - x*|| < 0.05`` (docs/spec.md §3.6)."""
 PERCH_POSITION_TOL = 0.05
-"""Glider perch: ``|x|, |z| < 0.05`` m at the end (SPEC §3)."""
+"""Glider perch: ``|x|, |z| < 0.05`` m at the end (docs/spec.md §4.6)."""
 PERCH_SPEED_TOL = 2.0
 """Glider perch: ``|dx|, |dz| <= 2`` m/s at the end."""
 POLICY_KINDS = ("mpc", "full", "lqr", "sb3")

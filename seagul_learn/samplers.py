@@ -4,11 +4,11 @@ Both samplers draw their starting states from one :class:`StartPool`: the unifor
 given seed. The uniform sampler solves them in order; the adversarial sampler starts its chains from a random
 subset of them (paper §6: "taken from a randomly selected subset of the samples used by the baseline").
 
-**Time to go.** Uniform draws and chain starts use the task's nominal ``tau`` (SPEC §3: uniform samples and
+**Time to go.** Uniform draws and chain starts use the task's nominal ``tau`` (docs/spec.md §4.5: uniform samples and
 validation use the nominal ``tau``; for the acrobot T0 is the single value 5 s anyway). The adversarial ascent
 moves ``tau`` inside T0 when T0 is an interval (``AdversarialOptions.ascend_tau``).
 
-**Ascent step (paper Eq. 6, SPEC §1).** For a solved iterate with value ``V`` and dual gradient ``dV/dx``
+**Ascent step (paper Eq. 6, docs/spec.md §11.2).** For a solved iterate with value ``V`` and dual gradient ``dV/dx``
 (``dV/dtau``), and the network's ``Vhat`` and autograd ``dVhat/dx``, the gradient of ``1/2 (V - Vhat)^2`` is
 ``g = (V - Vhat) (dV/dx - dVhat/dx)``. The ascent runs in box-normalised coordinates ``u = (x - low) / width``
 (coordinates whose X0 width is zero never move; ``tau`` is one more coordinate when it ascends), so

@@ -2,7 +2,7 @@
 
 One run, for a :class:`TrainConfig`:
 
-1. **Validation set** (SPEC §2/§3), solved once and cached on disk under ``cache_dir`` keyed by task and solver
+1. **Validation set** (docs/spec.md §3.6/§4.6), solved once and cached under ``cache_dir`` keyed by task and solver
    settings: acrobot a 10 x 10 grid over ``(th1, th2)`` at zero velocity plus 100 uniform draws from X0; glider a
    6 x 6 x 6 grid over ``(x, z, dx)`` (other states 0) plus 250 uniform draws; all at the nominal ``tau``. The random
    part uses a fixed seed, so every training seed is validated on the same set.
@@ -308,9 +308,9 @@ class ValidationSpec:
 
 
 VALIDATION_SPECS: dict[str, ValidationSpec] = {
-    # SPEC §2: 10 x 10 over (th1, th2) at zero velocity (X0's velocity centre is 0) + 100 uniform 4-D draws.
+    # docs/spec.md §3.6: 10 x 10 over (th1, th2) at zero velocity (X0's velocity centre is 0) + 100 uniform 4-D draws.
     "acrobot": ValidationSpec(grid_coords=(0, 1), grid_points=10, num_random=100),
-    # SPEC §3: 6 x 6 x 6 over (x, z, dx), other states 0 + 250 uniform draws.
+    # docs/spec.md §4.6: 6 x 6 x 6 over (x, z, dx), other states 0 + 250 uniform draws.
     "glider": ValidationSpec(grid_coords=(0, 1, 4), grid_points=6, num_random=250),
 }
 

@@ -2,8 +2,8 @@
 
 :class:`TrajectoryOptimizer` builds its transcription(s) once and reuses them for every solve. One solve from
 ``(x_init, tau)`` returns a :class:`~seagul_learn.results.SolveResult`: the value, ``dV/dx_init`` and ``dV/dtau``
-(parametric sensitivities ``-lam_p``, SPEC.md §1) and one label per knot (state, time to go, cost to go, ``dV_k/dx_k``
-from the defect multipliers).
+(parametric sensitivities ``-lam_p``, docs/spec.md §6.2) and one label per knot (state, time to go, cost to go,
+``dV_k/dx_k`` from the defect multipliers).
 
 Robustness: a deterministic sequence of attempts (solver and initial guess) is tried until one succeeds, so the label
 of a start depends only on ``(x_init, tau)`` and the configuration, never on what was solved before (batch and
@@ -408,9 +408,9 @@ def integrator_error(task: Task, result: SolveResult, max_substep: float = 1e-4)
     Returns:
         ``max_state_error``: the integrator error, largest one-interval ``|x_{k+1} - Phi_fine(x_k, u_k, h_k)|_inf``
         (the defect the transcription's RK4 leaves against the true flow).
-        ``cost_quadrature_rel_error``: the transcription's running cost (rectangle rule ``h_k l(x_k, u_k)``, SPEC §1)
-        against the fine integral of ``l`` along each interval, ``|diff| / max(V, 1)`` (zero for the glider, whose
-        ``l`` depends on ``u`` only).
+        ``cost_quadrature_rel_error``: the transcription's running cost (rectangle rule ``h_k l(x_k, u_k)``,
+        docs/spec.md §5.3) against the fine integral of ``l`` along each interval, ``|diff| / max(V, 1)`` (zero for
+        the glider, whose ``l`` depends on ``u`` only).
         ``replay_final_error``, ``replay_cost_rel_error``: open-loop replay of the inputs from ``x_init``. The
         acrobot's goal is unstable, so its 5 s replay drifts by construction even with an exact integrator: for
         information only.

@@ -10,7 +10,7 @@ from seagul_envs.tasks.base import Task
 
 
 class AcrobotEnv(TaskSimulatorEnv):
-    """The acrobot swing-up and balance task of SEAGuL (SPEC.md §2), integrated from the Task's CasADi model.
+    """The acrobot swing-up and balance task of SEAGuL (docs/spec.md §3), integrated from the Task's CasADi model.
 
     ## Description
 

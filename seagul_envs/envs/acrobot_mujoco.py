@@ -16,7 +16,7 @@ ACROBOT_XML = Path(__file__).resolve().parent.parent / "assets" / "acrobot.xml"
 
 
 class AcrobotMujocoEnv(SeagulEnv):
-    """The SEAGuL acrobot (SPEC.md §2) as an MJCF model stepped by MuJoCo's RK4 integrator.
+    """The SEAGuL acrobot (docs/spec.md §3.7) as an MJCF model stepped by MuJoCo's RK4 integrator.
 
     ## Description
 

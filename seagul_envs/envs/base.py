@@ -1,4 +1,4 @@
-"""Shared machinery of the seagul Gymnasium envs (SPEC.md §4).
+"""Shared machinery of the seagul Gymnasium envs (docs/spec.md §7).
 
 Every env simulates one :class:`~seagul_envs.tasks.base.Task` with a zero-order hold over a control period ``dt``.
 Conventions shared by all of them:

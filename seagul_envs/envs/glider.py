@@ -10,7 +10,7 @@ from seagul_envs.tasks.base import Task
 
 
 class GliderEnv(TaskSimulatorEnv):
-    """The perching glider of SEAGuL (SPEC.md §3), integrated from the Task's CasADi model.
+    """The perching glider of SEAGuL (docs/spec.md §4), integrated from the Task's CasADi model.
 
     ## Description
 

@@ -1,4 +1,4 @@
-"""The acrobot swing-up/balance task (SPEC.md §2).
+"""The acrobot swing-up/balance task (docs/spec.md §3).
 
 Model [src: Drake ``AcrobotPlant``/``AcrobotParams``, Underactuated ch. 3]::
 
@@ -73,7 +73,7 @@ class AcrobotParams:
 
 
 def acrobot_mass_matrix(q: ca.SX, p: AcrobotParams) -> ca.SX:
-    """``M(q)`` of the SPEC's manipulator equation."""
+    """``M(q)`` of the manipulator equation (docs/spec.md §3.2)."""
     c2 = ca.cos(q[1])
     I1 = p.Ic1 + p.m1 * p.lc1**2
     I2 = p.Ic2 + p.m2 * p.lc2**2

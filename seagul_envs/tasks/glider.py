@@ -1,4 +1,4 @@
-"""The perching-glider task (SPEC.md §3).
+"""The perching-glider task (docs/spec.md §4).
 
 Model [src: Drake (MATLAB era) ``examples/Glider/GliderPlant.m``; Underactuated "trajopt / perching"]: a flat-plate
 wing and elevator, ``x = [x, z, th, phi, dx, dz, dth]`` (centre-of-mass position, pitch positive nose-up, elevator
