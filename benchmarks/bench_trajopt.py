@@ -4,6 +4,11 @@ Usage: ``python benchmarks/bench_trajopt.py [--quick] [--workers 2] [--seed 0]``
 object ``{"acrobot": {"median_ms", "p95_ms", "success_rate", "n", ...}, "glider": {...}, "parallel_speedup": ...,
 "machine": {...}}``. Times are wall-clock per solve (``SolveResult.solve_time``, fallbacks included); ``cpu_*`` are
 the solving thread's CPU times, which show what an unloaded core would give when other jobs share the machine.
+
+``--parallel-only [--n 200] [--repeats 3] [--no-ray]``: ``solve_many`` on ``n`` acrobot starts with 1 and
+``--workers`` workers, for the local backend and for Ray (every configuration warmed first, so Ray is measured
+after its actor pool exists and every worker has built its solver); median wall time over the repeats, the
+speed-ups, the per-chunk overhead and the machine's load; the last line is a JSON object.
 """
 
 from __future__ import annotations
@@ -185,16 +190,123 @@ def bench_parallel(n: int, workers: int, seed: int) -> dict[str, Any]:
     }
 
 
+def _tiny_chunk_overhead_ms(backend: str, workers: int, starts: np.ndarray, reps: int = 20) -> dict[str, float]:
+    """Round trips of one-start chunks to one warm worker, one at a time: ``wall - solve_time`` is what a chunk costs
+    beyond its solve (submission, pickling both ways, scheduling); ``noop_ms`` is a round trip that solves nothing."""
+    from seagul_learn import parallel
+
+    frozen = parallel._freeze({})
+    taus = np.full(len(starts), make_task("acrobot").tau_nominal)
+    if backend == "local":
+        pool = parallel._local_pool(workers)
+
+        def call(i: int) -> list[SolveResult]:
+            return pool.submit(parallel._solve_chunk, "acrobot", frozen, starts[i : i + 1], taus[i : i + 1]).result()
+
+        def noop() -> Any:
+            return pool.submit(os.getpid).result()
+    else:
+        import ray
+
+        actor = parallel._ray_actors(ray, workers)[0]
+
+        def call(i: int) -> list[SolveResult]:
+            return ray.get(actor.solve_chunk.remote("acrobot", frozen, starts[i : i + 1], taus[i : i + 1]))
+
+        def noop() -> Any:
+            return ray.get(actor.pid.remote())
+
+    over, noops = [], []
+    for i in range(reps):
+        t0 = time.perf_counter()
+        (res,) = call(i % len(starts))
+        over.append(time.perf_counter() - t0 - res.solve_time)
+        t0 = time.perf_counter()
+        noop()
+        noops.append(time.perf_counter() - t0)
+    return {"chunk_ms": round(float(np.median(over)) * 1e3, 2), "noop_ms": round(float(np.median(noops)) * 1e3, 2)}
+
+
+def bench_parallel_backends(n: int, workers: int, seed: int, repeats: int, with_ray: bool = True) -> dict[str, Any]:
+    """``solve_many`` wall time for (local, ray) x (1, ``workers``) workers, each configuration warmed first."""
+    from seagul_learn.parallel import _chunks
+
+    task = make_task("acrobot")
+    starts = task.sample_x0(np.random.default_rng(seed + 7), n)
+    warm = task.sample_x0(np.random.default_rng(seed + 8), 4 * workers)
+    load_start = [round(v, 2) for v in os.getloadavg()]
+    backends = ["local", "ray"] if with_ray else ["local"]
+    configs = [(b, w) for b in backends for w in (1, workers)]
+    setup_s: dict[str, float] = {}
+    for b, w in configs:  # pools started, every worker's solver built; Ray's second call onwards is what is timed
+        t0 = time.perf_counter()
+        solve_many("acrobot", warm, workers=w, backend=b, progress=False)
+        setup_s[f"{b}_w{w}"] = round(time.perf_counter() - t0, 2)
+    walls: dict[tuple[str, int], list[float]] = {c: [] for c in configs}
+    solve_sums: dict[tuple[str, int], list[float]] = {c: [] for c in configs}
+    reference: list[SolveResult] | None = None
+    identical = True
+    for _ in range(repeats):
+        for b, w in configs:  # interleaved, so a change in the other jobs' load hits every configuration alike
+            t0 = time.perf_counter()
+            res = solve_many("acrobot", starts, workers=w, backend=b, progress=False)
+            walls[(b, w)].append(time.perf_counter() - t0)
+            solve_sums[(b, w)].append(sum(r.solve_time for r in res))
+            if reference is None:
+                reference = res
+            else:
+                identical &= all(
+                    np.array_equal(x.states, y.states) and x.value == y.value
+                    for x, y in zip(reference, res, strict=True)
+                )
+    out: dict[str, Any] = {"n": n, "workers": workers, "repeats": repeats}
+    for b, w in configs:
+        wall = float(np.median(walls[(b, w)]))
+        solve = float(np.median(solve_sums[(b, w)]))
+        in_process = b == "local" and w == 1
+        chunks = n if in_process else len(_chunks(n, w, None))
+        out[f"{b}_w{w}"] = {
+            "wall_s": round(wall, 3),
+            "walls_s": [round(v, 3) for v in walls[(b, w)]],
+            "sum_solve_s": round(solve, 3),
+            "chunks": chunks,
+            # worker time not spent inside a solve, per chunk (in-process: per solve); includes end-of-batch idling
+            "overhead_per_chunk_ms": round((w * wall - solve) / chunks * 1e3, 2),
+        }
+    for b in backends:
+        out[f"{b}_speedup"] = round(out[f"{b}_w1"]["wall_s"] / out[f"{b}_w{workers}"]["wall_s"], 2)
+    if with_ray:
+        out["ray_vs_local_serial_speedup"] = round(out["local_w1"]["wall_s"] / out[f"ray_w{workers}"]["wall_s"], 2)
+    out["tiny_chunk_overhead_ms"] = {b: _tiny_chunk_overhead_ms(b, workers, warm) for b in backends}
+    out["first_call_setup_s"] = setup_s
+    out["identical"] = bool(identical)
+    out["machine_reference_speedup"] = machine_speedup(workers)
+    out["cpu_count"] = os.cpu_count()
+    out["load_avg_start"] = load_start
+    out["load_avg_end"] = [round(v, 2) for v in os.getloadavg()]
+    out["machine"] = machine_info()
+    out["command"] = (
+        f"python benchmarks/bench_trajopt.py --parallel-only --n {n} --workers {workers} --repeats {repeats}"
+    )
+    if with_ray:
+        from seagul_learn.parallel import shutdown_ray_pool
+
+        shutdown_ray_pool()
+    return out
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer draws (under ~3 minutes)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--seed", type=int, default=0)
-    parser.add_argument("--parallel-only", action="store_true", help="only the speed-up measurement")
+    parser.add_argument("--parallel-only", action="store_true", help="only the speed-up measurement (local and Ray)")
+    parser.add_argument("--n", type=int, default=200, help="--parallel-only: acrobot starts per batch")
+    parser.add_argument("--repeats", type=int, default=3, help="--parallel-only: timed repeats per configuration")
+    parser.add_argument("--no-ray", action="store_true", help="--parallel-only: the local backend only")
     args = parser.parse_args()
     if args.parallel_only:
-        par = bench_parallel(200 if args.quick else 400, args.workers, args.seed)
-        print(json.dumps({"parallel": par, "parallel_speedup": par["speedup"], "machine": machine_info()}))
+        print(json.dumps(bench_parallel_backends(args.n, args.workers, args.seed, args.repeats, not args.no_ray)))
         return
     n_acro, n_glider, n_par = (200, 50, 96) if args.quick else (1000, 250, 400)
     n_acc, n_cons = (10, 30) if args.quick else (50, 100)

@@ -5,12 +5,20 @@ deterministic and no warm start carries over from one solve to the next, so the 
 number of workers or the backend. Each worker builds one :class:`TrajectoryOptimizer` per configuration the first
 time it needs it and keeps it (a build costs ~1 s; a solve ~10-500 ms), and runs single-threaded (BLAS/OpenMP
 threads pinned to 1) so that ``workers`` processes use ``workers`` cores.
+
+Both pools live as long as this process: the local loky pool (idle timeout 300 s) and the Ray actors (created on
+the first Ray solve, grown when a later call asks for more workers, rebuilt after ``ray.shutdown()``/``ray.init()``,
+killed by :func:`shutdown_ray_pool` or at exit). Training rounds therefore pay the worker start-up and the solver
+builds once, not once per round. Each Ray actor holds one CPU of the cluster while the pool lives.
 """
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import os
+import sys
+import threading
 from concurrent.futures import FIRST_COMPLETED, Future, wait
 from typing import Any
 
@@ -109,9 +117,10 @@ def solve_many(
         task_name: registry name of the task (``"acrobot"``, ``"glider"``).
         starts: ``(n, nx)`` start states.
         taus: ``(n,)`` times to go (default: the task's nominal for every start).
-        workers: processes (``backend="local"``) or actors (``backend="ray"``); ``1`` solves in this process.
+        workers: processes (``backend="local"``; ``1`` solves in this process) or actors (``backend="ray"``).
         backend: ``"local"`` (process pool on this machine) or ``"ray"`` (needs ``pip install seagul[ray]``; connects to
-            ``RAY_ADDRESS`` or ``solver_options["ray_address"]`` if set, else starts a local Ray).
+            ``RAY_ADDRESS`` or ``solver_options["ray_address"]`` if set, else starts a local Ray; the actors are
+            reused by later calls, see :func:`shutdown_ray_pool`).
         progress: show a tqdm progress bar.
         solver_options: :class:`~seagul_learn.trajopt.TrajOptConfig` fields (e.g. ``{"solver": "ipopt"}``); the
             key ``"ray_address"`` is read by the Ray backend and not passed on.
@@ -210,6 +219,85 @@ def _solve_local(
     return [r for r in results if r is not None]
 
 
+class _RayPool:
+    """This process's Ray actors, created on the first Ray solve and reused by every later one.
+
+    ``key`` names the Ray session the actors live in (process id, GCS address, session name, job id): after
+    ``ray.shutdown()`` and a new ``ray.init()`` (or a fork) the key no longer matches, the stale handles are dropped
+    and a new pool is built. ``created`` counts actor creations over the process's life (tests assert on it).
+    """
+
+    def __init__(self) -> None:
+        self.lock = threading.Lock()
+        self.key: tuple[Any, ...] | None = None
+        self.actors: list[Any] = []
+        self.created = 0
+
+    def clear(self) -> list[Any]:
+        actors, self.actors, self.key = self.actors, [], None
+        return actors
+
+
+_RAY_POOL = _RayPool()
+
+
+def _ray_session_key(ray: Any) -> tuple[Any, ...]:
+    ctx = ray.get_runtime_context()
+    return (os.getpid(), ctx.gcs_address, ctx.get_session_name(), ctx.get_job_id())
+
+
+def _ray_init(ray: Any, workers: int, address: str | None) -> None:
+    if ray.is_initialized():
+        return
+    address = address or os.environ.get("RAY_ADDRESS")
+    env = {"env_vars": {v: "1" for v in _THREAD_VARS}}
+    if address:
+        ray.init(address=address, runtime_env=env, ignore_reinit_error=True, log_to_driver=False)
+    else:
+        # Room for a later, larger call to grow the pool up to this machine's cores (or ``workers`` if more).
+        cpus = max(workers, os.cpu_count() or 1)
+        ray.init(num_cpus=cpus, runtime_env=env, ignore_reinit_error=True, log_to_driver=False)
+
+
+def _ray_actors(ray: Any, n: int) -> list[Any]:
+    """The first ``n`` actors of this process's pool, creating the pool (or growing it) as needed."""
+    with _RAY_POOL.lock:
+        key = _ray_session_key(ray)
+        if _RAY_POOL.key != key:
+            _RAY_POOL.clear()  # actors of a Ray session that is gone (they died with it): only forget them
+            _RAY_POOL.key = key
+        if len(_RAY_POOL.actors) < n:
+            actor_cls = _ray_actor_class(ray)
+            while len(_RAY_POOL.actors) < n:
+                _RAY_POOL.actors.append(actor_cls.remote())
+                _RAY_POOL.created += 1
+        return _RAY_POOL.actors[:n]
+
+
+def shutdown_ray_pool() -> None:
+    """Kill this process's Ray solver actors (freeing their CPUs); the next Ray solve builds a new pool.
+
+    Registered with :mod:`atexit`; safe to call at any time, also when Ray is not installed, not initialised or
+    already shut down.
+    """
+    with _RAY_POOL.lock:
+        key, actors = _RAY_POOL.key, _RAY_POOL.clear()
+    if not actors:
+        return
+    ray = sys.modules.get("ray")
+    if ray is None or not ray.is_initialized():
+        return
+    with contextlib.suppress(Exception):
+        if _ray_session_key(ray) != key:
+            return
+    for a in actors:
+        with contextlib.suppress(Exception):
+            ray.kill(a)
+
+
+atexit.register(shutdown_ray_pool)
+
+
 def _solve_ray(
     task_name: str,
     frozen: tuple[tuple[str, Any], ...],
@@ -225,18 +313,11 @@ def _solve_ray(
         raise ImportError(
             "backend='ray' needs the optional Ray extra: pip install 'seagul[ray]' (or pip install ray)"
         ) from err
-    if not ray.is_initialized():
-        address = address or os.environ.get("RAY_ADDRESS")
-        env = {"env_vars": {v: "1" for v in _THREAD_VARS}}
-        if address:
-            ray.init(address=address, runtime_env=env, ignore_reinit_error=True, log_to_driver=False)
-        else:
-            ray.init(num_cpus=workers, runtime_env=env, ignore_reinit_error=True, log_to_driver=False)
+    _ray_init(ray, workers, address)
 
-    actor_cls = _ray_actor_class(ray)
     n = starts.shape[0]
     chunks = _chunks(n, workers, None)
-    actors = [actor_cls.remote(task_name, frozen) for _ in range(min(workers, len(chunks)))]
+    actors = _ray_actors(ray, min(workers, len(chunks)))
     results: list[SolveResult | None] = [None] * n
     queue = list(chunks)
     in_flight: dict[Any, tuple[int, np.ndarray]] = {}
@@ -244,9 +325,10 @@ def _solve_ray(
     def submit(actor_i: int) -> None:
         if queue:
             idx = queue.pop(0)
-            ref = actors[actor_i].solve_chunk.remote(starts[idx], taus[idx])
+            ref = actors[actor_i].solve_chunk.remote(task_name, frozen, starts[idx], taus[idx])
             in_flight[ref] = (actor_i, idx)
 
+    finished = False
     try:
         with _progress(n, progress, f"{task_name} solves (ray x{len(actors)})") as bar:
             for i in range(len(actors)):
@@ -259,10 +341,12 @@ def _solve_ray(
                     results[int(i)] = res
                 bar.update(len(idx))
                 submit(actor_i)
+        finished = True
     finally:
-        for a in actors:
-            with contextlib.suppress(Exception):
-                ray.kill(a)
+        if not finished:
+            # An error or an interrupt: chunks may still be queued on the actors, or an actor may be dead for good.
+            # Kill the pool so that the next call starts from clean actors instead of waiting behind stale work.
+            shutdown_ray_pool()
     return [r for r in results if r is not None]
 
 
@@ -270,25 +354,31 @@ _RAY_ACTOR: Any = None
 
 
 def _ray_actor_class(ray: Any) -> Any:
-    """One solver per actor; a dead actor is restarted and its in-flight chunk re-run (deterministic, so safe)."""
+    """A pool actor: any task and options (each built solver cached in the actor's process while it lives).
+
+    A dead actor is restarted (its solvers are rebuilt on demand) and its in-flight chunk re-run (deterministic, so
+    safe).
+    """
     global _RAY_ACTOR
     if _RAY_ACTOR is None:
 
         class _SolverActor:
-            def __init__(self, task_name: str, frozen: tuple[tuple[str, Any], ...]) -> None:
-                self.task_name = task_name
-                self.frozen = frozen
+            def __init__(self) -> None:
                 _worker_init()
-                _optimizer(task_name, frozen)
 
-            def solve_chunk(self, starts: np.ndarray, taus: np.ndarray) -> list[SolveResult]:
-                return _solve_chunk(self.task_name, self.frozen, starts, taus)
+            def solve_chunk(
+                self, task_name: str, frozen: tuple[tuple[str, Any], ...], starts: np.ndarray, taus: np.ndarray
+            ) -> list[SolveResult]:
+                return _solve_chunk(task_name, frozen, starts, taus)
 
             def pid(self) -> int:
                 return os.getpid()
+
+            def node_id(self) -> str:
+                return ray.get_runtime_context().get_node_id()
 
         _RAY_ACTOR = ray.remote(num_cpus=1, max_restarts=-1, max_task_retries=3)(_SolverActor)
     return _RAY_ACTOR
 
 
-__all__ = ["solve_many"]
+__all__ = ["shutdown_ray_pool", "solve_many"]

@@ -7,6 +7,11 @@ that was in flight (safe: a chunk's results depend only on its inputs). The test
 it executes ``solve_chunk`` (Ray names the process ``ray::_SolverActor.solve_chunk`` then) and checks that every
 result still comes back, equal bit for bit to the local backend's; with the retry options switched off the same
 kill must lose the chunk (so the test can fail).
+
+Issue 11 item 6: the actors form one pool per process, created on the first Ray solve and reused by later calls
+(grown when a call asks for more workers, rebuilt after a new ``ray.init``); the tests count actor creations and
+compare actor ids and pids across calls, and a two-node cluster simulated with ``ray.cluster_utils.Cluster`` checks
+that the pool spreads over both nodes with results equal to the local backend's.
 """
 
 from __future__ import annotations
@@ -34,19 +39,33 @@ pytestmark = pytest.mark.ray
 _SOLVING = b"ray::_SolverActor.solve_chunk"
 
 
-@pytest.fixture(scope="module")
-def local_ray() -> Iterator[Any]:
-    """A private local Ray instance with two CPUs (never an outside cluster named by RAY_ADDRESS)."""
+@pytest.fixture(scope="module", autouse=True)
+def _private_ray() -> Iterator[None]:
+    """Never an outside cluster named by RAY_ADDRESS; Ray (and our actor pool) shut down after the module."""
     if ray.is_initialized():
         ray.shutdown()
     address = os.environ.pop("RAY_ADDRESS", None)
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
-        yield ray
+        yield
     finally:
+        parallel.shutdown_ray_pool()
         ray.shutdown()
         if address is not None:
             os.environ["RAY_ADDRESS"] = address
+
+
+_LOCAL_GCS: dict[str, str] = {}
+
+
+@pytest.fixture
+def local_ray() -> Any:
+    """A private local Ray instance with two CPUs, started once per module (again after the cluster test)."""
+    if ray.is_initialized() and ray.get_runtime_context().gcs_address != _LOCAL_GCS.get("gcs"):
+        ray.shutdown()
+    if not ray.is_initialized():
+        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+        _LOCAL_GCS["gcs"] = ray.get_runtime_context().gcs_address
+    return ray
 
 
 def _assert_same_results(a: list[SolveResult], b: list[SolveResult]) -> None:
@@ -152,8 +171,10 @@ def test_without_the_retry_options_the_same_kill_loses_the_chunk(
             return real.options(max_restarts=0, max_task_retries=0).remote(*args)
 
     monkeypatch.setattr(parallel, "_ray_actor_class", lambda _ray: NoRetry)
+    parallel.shutdown_ray_pool()  # the pool's actors (with retries) would otherwise be reused
     with pytest.raises(ray.exceptions.RayActorError):
         _solve_while_killing(_acrobot_starts(8))
+    assert parallel._RAY_POOL.actors == []  # a failed call drops the pool: the next one starts from fresh actors
 
 
 def test_training_on_ray_equals_training_in_process(local_ray: Any, tmp_path: Path) -> None:
@@ -164,7 +185,7 @@ def test_training_on_ray_equals_training_in_process(local_ray: Any, tmp_path: Pa
         config = TrainConfig(
             task="acrobot",
             sampler="adversarial",
-            budget=2,  # each batch call starts fresh actors (~3 s here): keep the calls few
+            budget=2,  # the actors (and their solvers) are built once, on the first Ray call
             solves_per_round=2,
             train_steps_per_round=10,
             batch_size=32,
@@ -187,3 +208,99 @@ def test_training_on_ray_equals_training_in_process(local_ray: Any, tmp_path: Pa
         for key in arrays_a.keys() - {"solve_time"}:
             np.testing.assert_array_equal(arrays_a[key], arrays_b[key], err_msg=f"record {a.index}: {key}")
     np.testing.assert_array_equal(local.network.casadi_parameters(), remote.network.casadi_parameters())
+
+
+def _pool_ids() -> list[str]:
+    return [a._actor_id.hex() for a in parallel._RAY_POOL.actors]
+
+
+def _gcs_solver_actors() -> set[str] | None:
+    """Ids of every ``_SolverActor`` ever created in this Ray session (alive or dead), as the GCS records them.
+
+    Through the state API when it is available (it needs the dashboard), else the GCS actor table that backs it;
+    None when neither answers (the pool's own bookkeeping is checked anyway).
+    """
+    try:
+        from ray.util.state import list_actors
+
+        return {a.actor_id for a in list_actors(limit=10_000) if a.class_name.endswith("_SolverActor")}
+    except Exception:
+        pass
+    try:
+        from ray._private import state
+
+        table = state.actors()
+    except Exception:
+        return None
+    return {k for k, v in table.items() if str(v.get("ActorClassName", "")).endswith("_SolverActor")}
+
+
+def test_later_calls_reuse_the_actor_pool(local_ray: Any) -> None:
+    starts = _acrobot_starts(6)
+    local = solve_many("acrobot", starts, workers=1, progress=False)
+    parallel.shutdown_ray_pool()  # start without a pool: the first call creates it
+    created = parallel._RAY_POOL.created
+
+    first = solve_many("acrobot", starts, workers=1, backend="ray", progress=False)
+    assert parallel._RAY_POOL.created == created + 1
+    (id0,) = _pool_ids()
+    (pid0,) = ray.get([a.pid.remote() for a in parallel._RAY_POOL.actors])
+
+    second = solve_many("acrobot", starts, workers=2, backend="ray", progress=False)  # grows the pool by one
+    assert parallel._RAY_POOL.created == created + 2
+    ids = _pool_ids()
+    assert len(ids) == 2 and ids[0] == id0
+    pids = ray.get([a.pid.remote() for a in parallel._RAY_POOL.actors])
+    assert pids[0] == pid0 and pids[1] != pid0
+    in_gcs = _gcs_solver_actors()
+    if in_gcs is not None:
+        assert set(ids) <= in_gcs
+
+    third = solve_many("acrobot", starts[::-1], workers=2, backend="ray", progress=False)
+    assert parallel._RAY_POOL.created == created + 2, "the third call created actors"
+    assert _pool_ids() == ids
+    assert ray.get([a.pid.remote() for a in parallel._RAY_POOL.actors]) == pids  # the same processes
+    if in_gcs is not None:
+        assert _gcs_solver_actors() == in_gcs, "Ray recorded new actors during the third call"
+
+    _assert_same_results(local, first)
+    _assert_same_results(local, second)
+    _assert_same_results(local[::-1], third)
+
+    handles = list(parallel._RAY_POOL.actors)
+    parallel.shutdown_ray_pool()
+    assert parallel._RAY_POOL.actors == []
+    with pytest.raises(ray.exceptions.RayActorError):
+        ray.get(handles[0].pid.remote(), timeout=60)
+
+
+def test_two_node_cluster_spreads_the_pool_over_both_nodes() -> None:
+    """Head + one worker node, 1 CPU each, on this machine: two actors must land one per node."""
+    from ray.cluster_utils import Cluster
+
+    starts = _acrobot_starts(6)
+    local = solve_many("acrobot", starts, workers=1, progress=False)
+    if ray.is_initialized():
+        ray.shutdown()  # the module's local Ray: the pool made there is now stale
+    stale = _pool_ids()
+    cluster = Cluster(initialize_head=True, head_node_args={"num_cpus": 1, "include_dashboard": False})
+    try:
+        cluster.add_node(num_cpus=1)
+        cluster.wait_for_nodes()
+        ray.init(address=cluster.address, log_to_driver=False)
+        created = parallel._RAY_POOL.created
+        remote = solve_many("acrobot", starts, workers=2, backend="ray", progress=False)
+        assert parallel._RAY_POOL.created == created + 2  # a fresh pool on the new cluster
+        assert not set(_pool_ids()) & set(stale)
+        _assert_same_results(local, remote)
+        nodes = set(ray.get([a.node_id.remote() for a in parallel._RAY_POOL.actors]))
+        alive_nodes = {n["NodeID"] for n in ray.nodes() if n["Alive"]}
+        assert len(alive_nodes) == 2
+        assert nodes == alive_nodes, "the two actors did not run on both nodes"
+        again = solve_many("acrobot", starts, workers=2, backend="ray", progress=False)
+        assert parallel._RAY_POOL.created == created + 2
+        _assert_same_results(local, again)
+    finally:
+        parallel.shutdown_ray_pool()
+        ray.shutdown()
+        cluster.shutdown()
