@@ -36,8 +36,9 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from seagul_control.evaluation import PolicySpec, evaluate, start_grid, summarize, write_outputs
+from seagul_control.evaluation import PolicySpec, evaluate, start_grid
 from seagul_envs import make_task
+from seagul_learn.report import summarize, write_outputs
 
 GUARDS = ("lqr", "box", "none")
 

@@ -629,7 +629,8 @@ class Experiment:
         Writes ``closed_loop/summary.json`` (``policies``: one row per policy and grid; ``methods``: see
         :func:`method_statistics`; the grids and budgets) and ``success_vs_solves.png``.
         """
-        from seagul_control.evaluation import start_grid, summarize
+        from seagul_control.evaluation import start_grid
+        from seagul_learn.report import summarize
 
         p = self.preset
         glider = self.task.name == "glider"  # the glider's trajectories are plotted (paper Fig. 3 centre)
@@ -723,7 +724,7 @@ class Experiment:
 
     def _grid_outputs(self, name: str, results: list[Any], shown: list[Any], grid: dict[str, Any]) -> dict[str, Path]:
         """Tables of every episode on one grid (queries left out) and the heatmap of the ``shown`` policies."""
-        from seagul_control.evaluation import plot_heatmaps, write_outputs
+        from seagul_learn.report import plot_heatmaps, write_outputs
 
         out = self.out / "closed_loop" / name
         paths = write_outputs(out, self.task.name, [replace(r, queries=[]) for r in results], None, {"grid": grid})

@@ -1,22 +1,176 @@
-"""A report a person can open: Markdown with embedded figures, plus a self-contained HTML copy.
+"""Reporting: tables and figures of closed-loop evaluations, and a report a person can open.
 
-The report is assembled from plain data (sections of text, tables as lists of rows, figure paths), so every stage of
-an experiment can add to it without knowing how it is rendered.
+Closed-loop evaluation tables and figures (the episodes themselves are run by :mod:`seagul_control.evaluation`,
+which returns plain :class:`~seagul_control.evaluation.EpisodeResult` data): :func:`summarize` (one row per policy)
+and :func:`write_outputs`, which writes ``results.json`` (every episode), ``summary.json`` / ``summary.csv`` (one row
+per policy), ``heatmap.png`` (:func:`plot_heatmaps`; acrobot: final distance over the ``(th1, th2)`` grid at zero
+velocity, like Fig. 2; glider: trajectory cost over the ``(x, z)`` grid, like Fig. 4) and, for the glider,
+``trajectories.png`` (:func:`plot_glider_trajectories`; x-z paths, Fig. 3 centre). matplotlib is imported only
+inside the figure functions (Agg backend, headless).
+
+The report (Markdown with embedded figures, plus a self-contained HTML copy) is assembled from plain data (sections
+of text, tables as lists of rows, figure paths), so every stage of an experiment can add to it without knowing how
+it is rendered.
 """
 
 from __future__ import annotations
 
 import base64
+import csv
 import html
 import importlib.metadata
+import json
+import math
 import os
 import platform
 import re
 from collections.abc import Sequence
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
+import numpy as np
+
+if TYPE_CHECKING:
+    from seagul_control.evaluation import EpisodeResult
+
+
+# ------------------------------------------------------------------------------------------------ evaluation tables
+def summarize(task_name: str, results: Sequence[EpisodeResult]) -> list[dict[str, Any]]:
+    """One row per policy: success rate, mean distance and cost, solver step times and fallbacks."""
+    rows = []
+    for name in dict.fromkeys(r.policy for r in results):
+        rs = [r for r in results if r.policy == name]
+        times = np.concatenate([np.asarray(r.solve_times) for r in rs]) if rs else np.zeros(0)
+        iters = np.concatenate([np.asarray(r.iterations, dtype=float) for r in rs]) if rs else np.zeros(0)
+        row: dict[str, Any] = {
+            "policy": name,
+            "episodes": len(rs),
+            "success_rate": float(np.mean([r.success for r in rs])),
+            "mean_final_distance": float(np.mean([r.final_distance for r in rs])),
+            "median_final_distance": float(np.median([r.final_distance for r in rs])),
+            "mean_cost": float(np.mean([r.cost for r in rs])),
+            "median_cost": float(np.median([r.cost for r in rs])),
+            "crashes": int(sum(r.terminated for r in rs)),
+            "median_step_ms": float(np.median(times) * 1e3) if times.size else math.nan,
+            "p95_step_ms": float(np.percentile(times, 95) * 1e3) if times.size else math.nan,
+            "max_step_ms": float(np.max(times) * 1e3) if times.size else math.nan,
+            "mean_iterations": float(np.mean(iters)) if iters.size else math.nan,
+            "fallback_steps": int(sum(r.fallbacks for r in rs)),
+            "steps": int(sum(r.steps for r in rs)),
+        }
+        if task_name == "glider":
+            row["perch_success_rate"] = row["success_rate"]
+        rows.append(row)
+    return rows
+
+
+def write_outputs(
+    out_dir: str | os.PathLike[str],
+    task_name: str,
+    results: Sequence[EpisodeResult],
+    grid: dict[str, Any] | None = None,
+    extra: dict[str, Any] | None = None,
+) -> dict[str, Path]:
+    """Write the JSON/CSV tables and the PNG figures; returns their paths by name."""
+    out = Path(out_dir)
+    out.mkdir(parents=True, exist_ok=True)
+    rows = summarize(task_name, results)
+    paths = {
+        "results": out / "results.json",
+        "summary_json": out / "summary.json",
+        "summary_csv": out / "summary.csv",
+    }
+    payload = {"task": task_name, "grid": grid, "episodes": [asdict(r) for r in results], **(extra or {})}
+    paths["results"].write_text(json.dumps(payload, allow_nan=True))
+    paths["summary_json"].write_text(json.dumps({"task": task_name, "policies": rows, **(extra or {})}, indent=2))
+    with paths["summary_csv"].open("w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+    if grid is not None:
+        paths["heatmap"] = plot_heatmaps(task_name, results, grid, out / "heatmap.png")
+    if task_name == "glider" and any(r.states for r in results):
+        paths["trajectories"] = plot_glider_trajectories(results, out / "trajectories.png")
+    return paths
+
+
+# ------------------------------------------------------------------------------------------------ evaluation figures
+def plot_heatmaps(task_name: str, results: Sequence[EpisodeResult], grid: dict[str, Any], path: Path) -> Path:
+    """One panel per policy: final distance (acrobot, log colour) or trajectory cost (glider) over the grid."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+    from matplotlib.colors import LogNorm
+
+    names = list(dict.fromkeys(r.policy for r in results))
+    n1, n2 = grid["shape"]
+    ax1, ax2 = (np.asarray(a) for a in grid["axes"])
+    metric = "final_distance" if task_name == "acrobot" else "cost"
+    values = {name: np.full((n1, n2), np.nan) for name in names}
+    success = {name: np.zeros((n1, n2), dtype=bool) for name in names}
+    for r in results:
+        i, j = divmod(r.index, n2)
+        values[r.policy][i, j] = getattr(r, metric)
+        success[r.policy][i, j] = r.success
+    finite = np.concatenate([v[np.isfinite(v)].ravel() for v in values.values()])
+    vmin = max(float(np.min(finite)), 1e-4) if finite.size else 1e-4
+    vmax = max(float(np.max(finite)), vmin * 10) if finite.size else 1.0
+    fig, axes = plt.subplots(1, len(names), figsize=(3.6 * len(names) + 0.8, 3.4), squeeze=False)
+    image = None
+    for ax, name in zip(axes[0], names, strict=True):
+        # Cells centred on the grid points.
+        d1 = (ax1[-1] - ax1[0]) / (n1 - 1) if n1 > 1 else 1.0
+        d2 = (ax2[-1] - ax2[0]) / (n2 - 1) if n2 > 1 else 1.0
+        extent = (ax2[0] - d2 / 2, ax2[-1] + d2 / 2, ax1[0] - d1 / 2, ax1[-1] + d1 / 2)
+        image = ax.imshow(
+            values[name], origin="lower", extent=extent, aspect="auto", cmap="viridis", norm=LogNorm(vmin, vmax)
+        )
+        fail = np.argwhere(~success[name])
+        if fail.size:
+            ax.scatter(ax2[fail[:, 1]], ax1[fail[:, 0]], marker="x", s=10, c="white", linewidths=0.6)
+        ax.set_title(f"{name}\nsuccess {success[name].mean():.0%}", fontsize=9)
+        ax.set_xlabel(grid["dims"][1])
+        ax.set_ylabel(grid["dims"][0])
+    label = "||x(T) - x*||" if metric == "final_distance" else "trajectory cost"
+    if image is not None:
+        fig.colorbar(image, ax=list(axes[0]), label=label + " (log)")
+    fig.suptitle(f"{task_name}: {label} over the start grid (x = failure)", fontsize=10, y=1.08)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+def plot_glider_trajectories(results: Sequence[EpisodeResult], path: Path, max_per_policy: int = 9) -> Path:
+    """x-z paths of recorded glider episodes, one colour per policy; the perch at the origin (Fig. 3 centre)."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    names = list(dict.fromkeys(r.policy for r in results))
+    fig, ax = plt.subplots(figsize=(7, 3.6))
+    colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    for k, name in enumerate(names):
+        recorded = [r for r in results if r.policy == name and r.states]
+        picks = recorded[:: max(1, len(recorded) // max_per_policy)][:max_per_policy]
+        for m, r in enumerate(picks):
+            s = np.asarray(r.states)
+            ax.plot(s[:, 0], s[:, 1], color=colors[k % len(colors)], lw=1, alpha=0.8, label=name if m == 0 else None)
+            ax.plot(s[-1, 0], s[-1, 1], "o" if r.success else "x", color=colors[k % len(colors)], ms=4)
+    ax.plot([0], [0], marker="*", ms=12, color="k", label="perch")
+    ax.set_xlabel("x (m)")
+    ax.set_ylabel("z (m)")
+    ax.set_title("glider trajectories (o = perched, x = missed)")
+    ax.legend(fontsize=8)
+    ax.grid(alpha=0.3)
+    fig.savefig(path, dpi=120, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
+# ------------------------------------------------------------------------------------------------ the report
 #: Libraries whose versions every report records.
 REPORTED_PACKAGES = ("seagul", "numpy", "scipy", "casadi", "torch", "gymnasium", "mujoco", "stable-baselines3")
 

@@ -1,21 +1,31 @@
-"""Closed-loop evaluation: grids, determinism across workers, tables and figures, SB3 models, the CLI."""
+"""Closed-loop evaluation: grids, determinism across workers, tables and figures, SB3 models, the CLI.
+
+Episodes are run by :mod:`seagul_control.evaluation` (data only, no matplotlib); the tables and figures come from
+:mod:`seagul_learn.report`, and their old names in ``seagul_control.evaluation`` still work with a warning.
+"""
 
 from __future__ import annotations
 
 import json
+import subprocess
+import sys
+import textwrap
 
 import numpy as np
 import pytest
 
 from seagul_control.evaluation import (
+    EpisodeResult,
     PolicySpec,
     evaluate,
     is_success,
     start_grid,
-    summarize,
-    write_outputs,
 )
 from seagul_envs import make_task
+from seagul_learn import report
+from seagul_learn.report import summarize, write_outputs
+
+MOVED = ("summarize", "write_outputs", "plot_heatmaps", "plot_glider_trajectories")
 
 
 def test_start_grids_follow_the_paper_figures():
@@ -115,3 +125,62 @@ def test_cli_evaluate(tmp_path, capsys):
     assert (out / "heatmap.png").is_file()
     assert main(["evaluate", "--task", "acrobot", "--out", str(out)]) == 2
     assert "no policy to evaluate" in capsys.readouterr().err
+
+
+def test_running_episodes_imports_neither_matplotlib_nor_torch():
+    """``seagul_control.evaluation`` is data only: importing it, running an episode and even touching a deprecated
+    table/figure name (imported lazily from ``seagul_learn.report``) loads neither matplotlib nor torch."""
+    code = textwrap.dedent(
+        """
+        import sys
+        import warnings
+
+        import seagul_control.evaluation as ev
+
+        assert "matplotlib" not in sys.modules and "torch" not in sys.modules, "on import"
+        assert "seagul_learn.report" not in sys.modules, "the new home is imported lazily"
+        starts, _ = ev.start_grid(ev.make_task("acrobot"), 1)
+        results = ev.evaluate("acrobot", [ev.PolicySpec("lqr")], starts, progress=False)
+        assert results[0].steps == 50
+        assert "matplotlib" not in sys.modules and "torch" not in sys.modules, "after an episode"
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", DeprecationWarning)
+            ev.write_outputs
+        assert "matplotlib" not in sys.modules and "torch" not in sys.modules, "after a deprecated name"
+        print("ok")
+        """
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    assert done.stdout.strip() == "ok"
+
+
+@pytest.mark.parametrize("name", MOVED)
+def test_moved_names_still_import_from_evaluation_with_a_warning(name):
+    import seagul_control.evaluation as ev
+
+    with pytest.warns(DeprecationWarning, match=rf"seagul_control\.evaluation\.{name} .*seagul_learn\.report\.{name}"):
+        old = getattr(ev, name)
+    assert old is getattr(report, name)
+    with pytest.warns(DeprecationWarning):
+        exec(f"from seagul_control.evaluation import {name}", {})
+    with pytest.raises(AttributeError, match="no attribute 'not_a_name'"):
+        ev.not_a_name  # noqa: B018
+
+
+def test_deprecated_write_outputs_gives_the_same_files(tmp_path):
+    import seagul_control.evaluation as ev
+
+    episodes = [
+        EpisodeResult("mpc", 0, [0.1, 0.2, 0, 0], [3.1, 0.0, 0, 0], 0.02, 12.5, True, False, 50, [0.001], [4]),
+        EpisodeResult("mpc", 1, [0.3, 0.4, 0, 0], [2.0, 1.0, 0, 0], 1.5, 40.0, False, False, 50, [0.002], [5]),
+    ]
+    grid = {"dims": ["th1", "th2"], "axes": [[0.0], [0.0, 1.0]], "shape": [1, 2]}
+    new = write_outputs(tmp_path / "new", "acrobot", episodes, grid)
+    with pytest.warns(DeprecationWarning):
+        old = ev.write_outputs(tmp_path / "old", "acrobot", episodes, grid)
+    assert set(old) == set(new) == {"results", "summary_json", "summary_csv", "heatmap"}
+    for key in ("results", "summary_json", "summary_csv"):
+        assert old[key].read_bytes() == new[key].read_bytes()
+    with pytest.warns(DeprecationWarning):
+        assert ev.summarize("acrobot", episodes) == summarize("acrobot", episodes)

@@ -6,8 +6,9 @@ Example::
         --sb3 runs/ppo_acrobot/model.zip --grid 20 --workers 2 --out results/eval_acrobot
 
 writes ``summary.json``/``summary.csv``/``results.json``, ``heatmap.png`` and (glider) ``trajectories.png`` into
-``--out`` (see :mod:`seagul_control.evaluation`). Several ``--network`` files may be given (one MPC each, labelled
-by ``--label`` or the file's parent directory).
+``--out`` (episodes are run by :mod:`seagul_control.evaluation`, tables and figures made by
+:mod:`seagul_learn.report`). Several ``--network`` files may be given (one MPC each, labelled by ``--label`` or the
+file's parent directory).
 """
 
 from __future__ import annotations
@@ -71,8 +72,9 @@ def specs_from_args(args: argparse.Namespace) -> list[Any]:
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate, write the tables and figures, print one line per policy; the last line is the output directory."""
-    from seagul_control.evaluation import evaluate, start_grid, summarize, write_outputs
+    from seagul_control.evaluation import evaluate, start_grid
     from seagul_envs import make_task
+    from seagul_learn.report import summarize, write_outputs
 
     task = make_task(args.task)
     specs = specs_from_args(args)
