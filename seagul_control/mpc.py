@@ -55,7 +55,6 @@ from __future__ import annotations
 
 import contextlib
 import os
-import sys
 import tempfile
 import time
 import warnings
@@ -72,6 +71,7 @@ from seagul_control.transcription import (
     TranscriptionSolution,
     codegen_cache_dir,
     find_c_compiler,
+    jit_solver_options,
 )
 from seagul_control.value_function import CasadiValueFunction
 from seagul_envs.tasks.base import Task
@@ -116,72 +116,9 @@ class MPCStepInfo:
 
 
 # ----------------------------------------------------------------------------------------------- JIT cache
-_CC_WRAPPER = '''"""seagul: compile a CasADi JIT source once, then copy the cached object (written by mpc.py)."""
-import hashlib, os, shutil, subprocess, sys, tempfile
-cache, cc, args = sys.argv[1], sys.argv[2], sys.argv[3:]
-src = next((a for a in args if a.endswith(".c")), None)
-out = args[args.index("-o") + 1] if "-o" in args else None
-if src is None or out is None:
-    sys.exit(subprocess.call([cc, *args]))
-digest = hashlib.sha256()
-digest.update(cc.encode() + b"\\0")
-for a in args:
-    if a not in (src, out):
-        digest.update(a.encode() + b"\\0")
-with open(src, "rb") as f:
-    digest.update(f.read())
-cached = os.path.join(cache, digest.hexdigest() + ".o")
-if os.path.isfile(cached):
-    shutil.copyfile(cached, out)
-    sys.exit(0)
-code = subprocess.call([cc, *args])
-if code == 0:
-    fd, tmp = tempfile.mkstemp(dir=cache, suffix=".tmp")
-    os.close(fd)
-    shutil.copyfile(out, tmp)
-    os.replace(tmp, cached)
-sys.exit(code)
-'''
-
-
-# One cache directory and one compiler lookup for every compiled CasADi artefact (the trajectory optimizer's too).
+# The JIT options, the compiler lookup and the cache directory live with the transcription's code generation
+# (seagul_control.transcription): one cache for every compiled CasADi artefact. Re-exported here.
 default_cache_dir = codegen_cache_dir
-
-
-def jit_solver_options(cache_dir: Path | None = None, flags: tuple[str, ...] = ("-O1",)) -> dict[str, Any] | None:
-    """nlpsol options that JIT-compile the NLP functions through the caching compiler wrapper (None: no compiler).
-
-    ``-O1`` is the trade-off measured for the acrobot MPC: ``-O0`` code ran 4x slower, ``-O2``/``-O3`` compile
-    far longer for no measurable gain on these expression graphs.
-    """
-    cc = find_c_compiler()
-    if cc is None:
-        return None
-    cache_dir = default_cache_dir() if cache_dir is None else Path(cache_dir)
-    compiler = cc
-    try:
-        cache_dir.mkdir(parents=True, exist_ok=True)
-        script = cache_dir / "seagul_cc.py"
-        if not script.is_file() or script.read_text() != _CC_WRAPPER:
-            fd, tmp = tempfile.mkstemp(dir=cache_dir, suffix=".tmp")
-            with os.fdopen(fd, "w") as f:
-                f.write(_CC_WRAPPER)
-            os.replace(tmp, script)
-        # CasADi splits the compiler command on whitespace: only use the wrapper when no path contains a space.
-        parts = (sys.executable, str(script), str(cache_dir), cc)
-        if not any(" " in p for p in parts):
-            compiler = " ".join(parts)
-    except OSError as exc:
-        warnings.warn(f"seagul MPC: JIT cache directory {cache_dir} unusable ({exc}); compiling uncached", stacklevel=2)
-    return {
-        "jit": True,
-        "compiler": "shell",
-        "jit_name": "seagul_mpc",
-        # A fixed name keeps the generated source identical between runs (the cache key); builds happen in a
-        # private directory (see _jit_directory), so equal file names never collide.
-        "jit_temp_suffix": False,
-        "jit_options": {"compiler": compiler, "flags": list(flags), "verbose": False},
-    }
 
 
 _JIT_DIR: str | None = None
@@ -207,8 +144,6 @@ class _Problem:
         self.pin_first_step = pin_first_step and trans.free_time
         self.shrink_steps = shrink_steps
         self.min_step = min_step
-        if self.pin_first_step and not all(hasattr(trans, a) for a in ("_lbw", "_ubw", "_h_idx")):
-            raise RuntimeError("Transcription no longer exposes _lbw/_ubw/_h_idx; the MPC cannot pin its first step")
 
     def solve(
         self,
@@ -220,18 +155,21 @@ class _Problem:
         lam_g: np.ndarray | None = None,
         lam_x: np.ndarray | None = None,
     ) -> TranscriptionSolution:
+        trans = self.trans
         if self.pin_first_step:
-            # Private bounds of the transcription: the first step must equal the env's hold time.
-            idx = self.trans._h_idx
+            # The first step must equal the env's hold time.
             h0 = min(dt, max(tau, 0.0))
-            self.trans._lbw[idx[0]] = self.trans._ubw[idx[0]] = h0
+            trans.set(0, "lbh", h0)
+            trans.set(0, "ubh", h0)
             if self.shrink_steps:
                 # Steps shrink with the time left (a zero lower bound makes degenerate zero-length steps).
-                hi = self.trans.step_bounds[1]
-                rest = max(tau - h0, 0.0) / max(len(idx) - 1, 1)
-                self.trans._lbw[idx[1:]] = min(self.min_step, 0.5 * rest)
-                self.trans._ubw[idx[1:]] = max(hi, rest)
-        return self.trans.solve(x, tau, theta, guess=guess, lam_g=lam_g, lam_x=lam_x)
+                hi = trans.step_bounds[1]
+                rest = max(tau - h0, 0.0) / max(trans.horizon - 1, 1)
+                lo_k, hi_k = min(self.min_step, 0.5 * rest), max(hi, rest)
+                for k in range(1, trans.horizon):
+                    trans.set(k, "lbh", lo_k)
+                    trans.set(k, "ubh", hi_k)
+        return trans.solve(x, tau, theta, guess=guess, lam_g=lam_g, lam_x=lam_x)
 
     def cold_guess(self, x: np.ndarray, tau: float, dt: float, kind: str) -> np.ndarray:
         """A first guess: a zero-input rollout (``"rollout"``) or the transcription's straight line (``"line"``)."""
@@ -302,24 +240,25 @@ def _shift_guess(
         if target.pin_first_step:
             steps[0] = min(dt, max(tau, 0.0))
     primal = trans.pack_guess(states, controls, steps if trans.free_time else None)
-    if plan.problem is not target or not all(hasattr(trans, k) for k in ("_x_idx", "_u_idx", "_defect_rows")):
+    if plan.problem is not target:
         return primal, None, None
-    # Bound multipliers in the primal layout, constraint multipliers stage by stage (private index maps).
+    # Bound multipliers in the primal layout, constraint multipliers stage by stage (the transcription's index maps).
     lx = plan.lam_x
-    lx_states = _shifted(np.stack([lx[i] for i in trans._x_idx]), a, n + 1)
-    lx_controls = _shifted(np.stack([lx[i] for i in trans._u_idx]), a, n)
-    lx_steps = _shifted(lx[trans._h_idx], a, n) if trans.free_time else None
+    lx_states = _shifted(lx[trans.state_index], a, n + 1)
+    lx_controls = _shifted(lx[trans.control_index], a, n)
+    lx_steps = _shifted(lx[trans.step_index], a, n) if trans.free_time else None
     lam_x = trans.pack_guess(lx_states, lx_controls, lx_steps)
-    t_idx = getattr(trans, "_t_idx", [])
+    t_idx = trans.time_index
     if trans.free_time and len(t_idx):
         # pack_guess fills the elapsed-time states from the steps; their multipliers shift like the states.
         lam_x[t_idx] = _shifted(lx[t_idx], a, n + 1)
     lam_g = plan.lam_g.copy()
-    defects = _shifted(np.stack([plan.lam_g[r] for r in trans._defect_rows]), a, n)
-    # The initial-state rows come first; x_{a} - x_init takes over the multiplier of the defect that fixed x_a.
-    lam_g[: trans.task.nx] = plan.lam_g[trans._defect_rows[min(a, n) - 1]] if a >= 1 else plan.lam_g[: trans.task.nx]
-    for k, rows in enumerate(trans._defect_rows):
-        lam_g[rows] = defects[k]
+    rows = trans.defect_rows
+    defects = _shifted(plan.lam_g[rows], a, n)
+    # x_{a} - x_init takes over the multiplier of the defect that fixed x_a.
+    init = trans.initial_rows
+    lam_g[init] = plan.lam_g[rows[min(a, n) - 1]] if a >= 1 else plan.lam_g[init]
+    lam_g[rows] = defects
     return primal, lam_g, lam_x
 
 

@@ -22,7 +22,15 @@ as before. With ``codegen=True`` the solver's functions (``nlp_f``, ``nlp_g``, t
 generated as C once, compiled with the system C compiler into ``$SEAGUL_CACHE_DIR`` (default
 ``~/.cache/seagul/casadi``) under a hash of the generated source, and loaded from there: a new process with the same
 problem only regenerates the source (~0.1 s) and loads the library. Without a compiler it falls back to the
-interpreted solver with a warning. Measured gains are in docs/trajopt.md.
+interpreted solver with a warning. Measured gains are in docs/trajopt.md. This module is the one home of compiled
+CasADi code: the MPC's JIT options (:func:`jit_solver_options`) use the same cache directory
+(:func:`codegen_cache_dir`, i.e. :func:`seagul_control._io.cache_dir`) and compiler lookup.
+
+Stage access: after the build, bounds and the stored initial guess are read and written per stage in the style of
+acados' ``solver.set(stage, field, value)``: :meth:`Transcription.set`, :meth:`Transcription.get` and
+:meth:`Transcription.set_guess` (fields in :data:`STAGE_FIELDS`); the positions of each stage's variables and
+defects in the NLP vectors are the read-only arrays ``state_index``, ``control_index``, ``step_index``,
+``time_index``, ``defect_rows`` and ``initial_rows``.
 """
 
 from __future__ import annotations
@@ -31,6 +39,7 @@ import hashlib
 import os
 import shutil
 import subprocess
+import sys
 import tempfile
 import time
 import warnings
@@ -41,6 +50,8 @@ from typing import Any, Literal
 import casadi as ca
 import numpy as np
 
+from seagul_control import _io
+from seagul_control._io import atomic_write_text
 from seagul_envs.tasks.base import Task
 
 TimeMode = Literal["equal", "at_most", "free"]
@@ -51,6 +62,22 @@ SUCCESS_STATUSES = frozenset({"Solve_Succeeded", "Solved_To_Acceptable_Level", "
 #: Flags of the cached C compilation: ``-O1`` compiles the ~1.5 MB generated source in about half the time of
 #: ``-O2`` for the same solve speed (measured on the acrobot, docs/trajopt.md).
 CODEGEN_FLAGS: tuple[str, ...] = ("-O1", "-fPIC", "-shared")
+
+#: Fields of :meth:`Transcription.set` / :meth:`Transcription.get`: name -> (variable, role). Variables: ``"x"`` the
+#: knot state ``x_k`` (stages ``0..n``), ``"u"`` the input ``u_k`` and ``"h"`` the free step ``h_k`` (stages
+#: ``0..n-1``; ``"h"`` only with ``free_time``). Roles: ``"guess"`` the stored initial guess, ``"lb"``/``"ub"`` the
+#: variable's bounds.
+STAGE_FIELDS: dict[str, tuple[str, str]] = {
+    "x": ("x", "guess"),
+    "u": ("u", "guess"),
+    "h": ("h", "guess"),
+    "lbx": ("x", "lb"),
+    "ubx": ("x", "ub"),
+    "lbu": ("u", "lb"),
+    "ubu": ("u", "ub"),
+    "lbh": ("h", "lb"),
+    "ubh": ("h", "ub"),
+}
 
 
 @dataclass
@@ -112,9 +139,8 @@ def default_fatrop_options() -> dict[str, Any]:
 
 
 def codegen_cache_dir() -> Path:
-    """``$SEAGUL_CACHE_DIR`` or ``~/.cache/seagul/casadi`` (shared with the MPC's JIT cache)."""
-    env = os.environ.get("SEAGUL_CACHE_DIR")
-    return Path(env) if env else Path.home() / ".cache" / "seagul" / "casadi"
+    """``$SEAGUL_CACHE_DIR`` or ``~/.cache/seagul/casadi``: every compiled CasADi artefact (libraries, JIT objects)."""
+    return _io.cache_dir("casadi")
 
 
 def find_c_compiler() -> str | None:
@@ -164,6 +190,72 @@ def compile_nlp_library(solver: ca.Function, name: str, cache_dir: Path | None =
     return lib
 
 
+# ----------------------------------------------------------------------------------------------- MPC JIT
+# The compiler wrapper CasADi's JIT runs (a standalone script: it runs in the compiler's process, outside seagul, so
+# it carries its own atomic copy). Its text is the cache's content check: keep it unchanged unless it must change.
+_CC_WRAPPER = '''"""seagul: compile a CasADi JIT source once, then copy the cached object (written by mpc.py)."""
+import hashlib, os, shutil, subprocess, sys, tempfile
+cache, cc, args = sys.argv[1], sys.argv[2], sys.argv[3:]
+src = next((a for a in args if a.endswith(".c")), None)
+out = args[args.index("-o") + 1] if "-o" in args else None
+if src is None or out is None:
+    sys.exit(subprocess.call([cc, *args]))
+digest = hashlib.sha256()
+digest.update(cc.encode() + b"\\0")
+for a in args:
+    if a not in (src, out):
+        digest.update(a.encode() + b"\\0")
+with open(src, "rb") as f:
+    digest.update(f.read())
+cached = os.path.join(cache, digest.hexdigest() + ".o")
+if os.path.isfile(cached):
+    shutil.copyfile(cached, out)
+    sys.exit(0)
+code = subprocess.call([cc, *args])
+if code == 0:
+    fd, tmp = tempfile.mkstemp(dir=cache, suffix=".tmp")
+    os.close(fd)
+    shutil.copyfile(out, tmp)
+    os.replace(tmp, cached)
+sys.exit(code)
+'''
+
+
+def jit_solver_options(cache_dir: Path | None = None, flags: tuple[str, ...] = ("-O1",)) -> dict[str, Any] | None:
+    """nlpsol options that JIT-compile the NLP functions through the caching compiler wrapper (None: no compiler).
+
+    The objects are cached in ``cache_dir`` (default :func:`codegen_cache_dir`, shared with
+    :func:`compile_nlp_library`) under a hash of the generated source, the compiler and the flags.
+    ``-O1`` is the trade-off measured for the acrobot MPC: ``-O0`` code ran 4x slower, ``-O2``/``-O3`` compile
+    far longer for no measurable gain on these expression graphs.
+    """
+    cc = find_c_compiler()
+    if cc is None:
+        return None
+    cache_dir = codegen_cache_dir() if cache_dir is None else Path(cache_dir)
+    compiler = cc
+    try:
+        cache_dir.mkdir(parents=True, exist_ok=True)
+        script = cache_dir / "seagul_cc.py"
+        if not script.is_file() or script.read_text() != _CC_WRAPPER:
+            atomic_write_text(script, _CC_WRAPPER)
+        # CasADi splits the compiler command on whitespace: only use the wrapper when no path contains a space.
+        parts = (sys.executable, str(script), str(cache_dir), cc)
+        if not any(" " in p for p in parts):
+            compiler = " ".join(parts)
+    except OSError as exc:
+        warnings.warn(f"seagul MPC: JIT cache directory {cache_dir} unusable ({exc}); compiling uncached", stacklevel=2)
+    return {
+        "jit": True,
+        "compiler": "shell",
+        "jit_name": "seagul_mpc",
+        # A fixed name keeps the generated source identical between runs (the cache key); builds happen in a
+        # private directory (the MPC's per-process JIT directory), so equal file names never collide.
+        "jit_temp_suffix": False,
+        "jit_options": {"compiler": compiler, "flags": list(flags), "verbose": False},
+    }
+
+
 class Transcription:
     """Direct multiple-shooting transcription, built once and solved many times.
 
@@ -183,6 +275,18 @@ class Transcription:
         codegen: compile the NLP functions to C (cached on disk; see the module docstring); falls back to the
             interpreted solver with a warning when no compiler works.
         codegen_dir: cache directory of the compiled libraries (default :func:`codegen_cache_dir`).
+
+    Attributes:
+        state_index: ``(n + 1, nx)`` positions of ``x_k`` in the primal vector (and in ``lam_x``).
+        control_index: ``(n, nu)`` positions of ``u_k``.
+        step_index: ``(n,)`` positions of the free steps ``h_k`` (empty for fixed steps).
+        time_index: ``(n + 1,)`` positions of the elapsed-time states ``t_k`` (empty for fixed steps).
+        defect_rows: ``(n, nx)`` rows of the defects ``x_{k+1} - F(x_k, u_k, h_k)`` in the constraint vector (and in
+            ``lam_g``).
+        initial_rows: ``(nx,)`` rows of ``x_0 - x_init``.
+
+    The index arrays are read-only. Bounds and the stored initial guess are changed per stage with :meth:`set`
+    (acados style) and read with :meth:`get`; they persist across solves.
     """
 
     def __init__(
@@ -323,6 +427,14 @@ class Transcription:
         self._lbg, self._ubg = np.concatenate(lbg), np.concatenate(ubg)
         self._np = int(p.numel())
         self._equality = equality
+        self.state_index = _read_only(np.stack(self._x_idx))
+        self.control_index = _read_only(np.stack(self._u_idx))
+        self.step_index = _read_only(np.asarray(self._h_idx, dtype=np.int64))
+        self.time_index = _read_only(np.asarray(self._t_idx, dtype=np.int64))
+        self.defect_rows = _read_only(np.stack(self._defect_rows))
+        self.initial_rows = _read_only(np.arange(nx, dtype=np.int64))
+        # Initial guess used by solve() when none is passed (None: the straight line of line_guess).
+        self._guess: np.ndarray | None = None
         nlp = {"x": self._w, "p": p, "f": objective, "g": ca.vertcat(*g)}
         if solver == "ipopt":
             options = {**default_ipopt_options(), "expand": True, **(solver_options or {})}
@@ -357,6 +469,111 @@ class Transcription:
     def num_parameters(self) -> int:
         """Length of ``p = [x_init, tau, theta]``."""
         return self._np
+
+    # ---------------------------------------------------------- stage access
+    def _stage_positions(self, stage: Any, field: str, caller: str) -> tuple[np.ndarray, str]:
+        """Primal positions of ``field`` at ``stage`` and the field's role; ValueErrors name the problem."""
+        if not isinstance(field, str) or field not in STAGE_FIELDS:
+            raise ValueError(f"Transcription.{caller}: unknown field {field!r}; use one of {sorted(STAGE_FIELDS)}")
+        var, role = STAGE_FIELDS[field]
+        if var == "h" and not self.free_time:
+            raise ValueError(
+                f"Transcription.{caller}: field {field!r} needs free steps, but this transcription has fixed steps "
+                "(free_time=False)"
+            )
+        last = self.horizon if var == "x" else self.horizon - 1
+        if isinstance(stage, bool) or not isinstance(stage, int | np.integer) or not 0 <= int(stage) <= last:
+            raise ValueError(
+                f"Transcription.{caller}: stage of field {field!r} must be an integer in 0..{last} "
+                f"(horizon {self.horizon}), got {stage!r}"
+            )
+        k = int(stage)
+        if var == "x":
+            return self._x_idx[k], role
+        if var == "u":
+            return self._u_idx[k], role
+        return np.array([self._h_idx[k]]), role
+
+    def set(self, stage: int, field: str, value: Any) -> None:
+        """Set ``field`` of ``stage`` (acados' ``solver.set(stage, field, value)``); kept for every later solve.
+
+        Fields (:data:`STAGE_FIELDS`): ``"lbx"``/``"ubx"`` bounds of ``x_k`` (stages ``0..n``), ``"lbu"``/``"ubu"``
+        of ``u_k`` and ``"lbh"``/``"ubh"`` of the free step ``h_k`` (stages ``0..n-1``); ``"x"``, ``"u"``, ``"h"``
+        the same entries of the stored initial guess, which :meth:`solve` uses when called without ``guess`` (it
+        starts as the zero guess of :meth:`pack_guess` on the first such set; :meth:`set_guess` replaces it whole;
+        elapsed-time states follow the steps). Bounds may be infinite; a box with ``lb > ub`` is the solver's to
+        report (set both sides of a changed box).
+
+        Args:
+            stage: the stage ``k``.
+            field: the field name.
+            value: ``(nx,)``, ``(nu,)`` or ``(1,)`` numbers, or a number for a one-entry field.
+
+        Raises:
+            ValueError: unknown field, a step field of a fixed-step transcription, a stage outside the field's
+                range, a value of the wrong shape, a NaN, or a non-finite guess.
+        """
+        pos, role = self._stage_positions(stage, field, "set")
+        try:
+            arr = np.asarray(value, dtype=float)
+        except (TypeError, ValueError) as exc:
+            msg = f"Transcription.set: field {field!r} at stage {stage} needs numbers, got {value!r}"
+            raise ValueError(msg) from exc
+        if arr.shape != (pos.size,) and not (arr.ndim == 0 and pos.size == 1):
+            raise ValueError(
+                f"Transcription.set: field {field!r} at stage {stage} needs shape ({pos.size},), got {arr.shape}"
+            )
+        if np.any(np.isnan(arr)):
+            raise ValueError(f"Transcription.set: field {field!r} at stage {stage} contains NaN: {arr}")
+        if role == "lb":
+            self._lbw[pos] = arr
+        elif role == "ub":
+            self._ubw[pos] = arr
+        else:
+            if not np.all(np.isfinite(arr)):
+                raise ValueError(f"Transcription.set: guess {field!r} at stage {stage} must be finite, got {arr}")
+            if self._guess is None:
+                zeros = (np.zeros((self.horizon + 1, self.task.nx)), np.zeros((self.horizon, self.task.nu)))
+                self._guess = self.pack_guess(*zeros)
+            self._guess[pos] = arr
+            if STAGE_FIELDS[field][0] == "h":
+                self._guess[self._t_idx] = np.concatenate([[0.0], np.cumsum(self._guess[self._h_idx])])
+
+    def get(self, stage: int, field: str) -> np.ndarray:
+        """A copy of ``field`` of ``stage`` (fields as for :meth:`set`; always an array, ``(1,)`` for steps).
+
+        Raises:
+            ValueError: as for :meth:`set`, or a guess field while no guess is stored.
+        """
+        pos, role = self._stage_positions(stage, field, "get")
+        if role == "lb":
+            return self._lbw[pos].copy()
+        if role == "ub":
+            return self._ubw[pos].copy()
+        if self._guess is None:
+            raise ValueError(f"Transcription.get: no initial guess is stored (field {field!r}); use set or set_guess")
+        return self._guess[pos].copy()
+
+    def set_guess(self, primal: np.ndarray | None) -> None:
+        """Store a whole initial guess (a primal vector, e.g. from :meth:`pack_guess`) for solves without ``guess``;
+        None goes back to the default straight line of :meth:`line_guess`.
+
+        Raises:
+            ValueError: not ``num_variables`` finite numbers.
+        """
+        if primal is None:
+            self._guess = None
+            return
+        arr = np.asarray(primal, dtype=float)
+        if arr.shape != (self.num_variables,):
+            raise ValueError(f"Transcription.set_guess: needs shape ({self.num_variables},), got {arr.shape}")
+        if not np.all(np.isfinite(arr)):
+            raise ValueError("Transcription.set_guess: the guess must be finite")
+        self._guess = arr.copy()
+
+    def get_guess(self) -> np.ndarray | None:
+        """A copy of the stored initial guess, or None (solves then start from :meth:`line_guess`)."""
+        return None if self._guess is None else self._guess.copy()
 
     # ---------------------------------------------------------------- guesses
     def pack_guess(self, states: np.ndarray, controls: np.ndarray, steps: np.ndarray | None = None) -> np.ndarray:
@@ -393,12 +610,21 @@ class Transcription:
         lam_g: np.ndarray | None = None,
         lam_x: np.ndarray | None = None,
     ) -> TranscriptionSolution:
-        """Solve from ``x_init`` with time to go ``tau`` (inputs assumed validated by the caller)."""
+        """Solve from ``x_init`` with time to go ``tau`` (inputs assumed validated by the caller).
+
+        The initial guess is ``guess``, else the stored one (:meth:`set`, :meth:`set_guess`), else
+        :meth:`line_guess`; the bounds are the current ones (:meth:`set`).
+        """
         theta_arr = np.zeros(self.n_theta) if theta is None else np.asarray(theta, dtype=float).ravel()
         if theta_arr.size != self.n_theta:
             raise ValueError(f"theta must have {self.n_theta} entries, got {theta_arr.size}")
         p = np.concatenate([np.asarray(x_init, dtype=float).ravel(), [float(tau)], theta_arr])
-        w0 = self.line_guess(x_init, tau) if guess is None else np.asarray(guess, dtype=float)
+        if guess is not None:
+            w0 = np.asarray(guess, dtype=float)
+        elif self._guess is not None:
+            w0 = self._guess.copy()
+        else:
+            w0 = self.line_guess(x_init, tau)
         args: dict[str, Any] = {
             "x0": w0,
             "p": p,
@@ -449,3 +675,8 @@ class Transcription:
         """``h_k * l(x_k, u_k)`` for ``k = 0..n-1``."""
         rates = np.asarray(self._stage_cost_fn(states[:-1].T, controls.T)).ravel()
         return rates * np.asarray(steps)
+
+
+def _read_only(arr: np.ndarray) -> np.ndarray:
+    arr.setflags(write=False)
+    return arr

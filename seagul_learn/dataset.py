@@ -29,10 +29,11 @@ key                  shape / dtype   meaning
 ``step``             () int64        iterate number within the chain (0 for the chain's start)
 ===================  ==============  ===============================================================
 
-Writes are atomic: a record goes to a hidden temp file in ``records/``, is flushed and fsynced, then renamed over
-its final name (``os.replace``) and the directory is fsynced. A crash therefore leaves either a complete record or
-a stray ``.tmp-*`` file, which readers ignore and :meth:`Dataset.open` deletes. Failed solves are stored with their
-status (they count against budgets) but :func:`training_arrays` never turns them into training samples.
+Writes are atomic (:func:`seagul_control._io.atomic_write_bytes`): a record goes to a hidden temp file in
+``records/``, is flushed and fsynced, then renamed over its final name (``os.replace``) and the directory is
+fsynced. A crash therefore leaves either a complete record or a stray ``.tmp-*`` file, which readers ignore and
+:meth:`Dataset.open` deletes. Failed solves are stored with their status (they count against budgets) but
+:func:`training_arrays` never turns them into training samples.
 """
 
 from __future__ import annotations
@@ -41,7 +42,6 @@ import io
 import json
 import os
 import re
-import tempfile
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, fields
 from pathlib import Path
@@ -49,6 +49,9 @@ from typing import Any
 
 import numpy as np
 
+# The one atomic writer (torch-free, shared by every package); re-exported here for existing importers.
+from seagul_control._io import atomic_write_bytes as atomic_write_bytes
+from seagul_control._io import atomic_write_text as atomic_write_text
 from seagul_learn.results import SolveResult
 
 FORMAT_TAG = "seagul-dataset"
@@ -297,41 +300,3 @@ def count_failures(records: Sequence[SolveRecord]) -> int:
 def _jsonable(obj: Any) -> Any:
     """Round-trip through JSON so comparisons with a stored header are like for like."""
     return json.loads(json.dumps(obj, sort_keys=True, default=str))
-
-
-def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
-    """Write ``data`` to ``path`` atomically: a ``.tmp-*`` file beside it, fsync, rename, fsync the directory.
-
-    A reader sees the old file or the complete new one, never a torn one, whenever the writer is killed.
-    """
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as f:
-            f.write(data)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    _fsync_dir(path.parent)
-
-
-def atomic_write_text(path: str | os.PathLike[str], text: str) -> None:
-    """Write ``text`` to ``path`` atomically (temp file, fsync, rename)."""
-    atomic_write_bytes(Path(path), text.encode())
-
-
-def _fsync_dir(path: Path) -> None:
-    try:
-        fd = os.open(path, os.O_RDONLY)
-    except OSError:  # some filesystems/platforms cannot open directories
-        return
-    try:
-        os.fsync(fd)
-    except OSError:
-        pass
-    finally:
-        os.close(fd)

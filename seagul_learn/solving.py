@@ -11,10 +11,10 @@ from __future__ import annotations
 
 import functools
 import hashlib
+import io
 import json
 import os
 import sys
-import tempfile
 from collections.abc import Callable, Sequence
 from dataclasses import fields
 from pathlib import Path
@@ -22,6 +22,7 @@ from typing import Any
 
 import numpy as np
 
+from seagul_control._io import atomic_write_bytes
 from seagul_envs.tasks.base import Task
 from seagul_learn.dataset import Dataset, DatasetError, SolveRecord
 from seagul_learn.results import SolveResult
@@ -285,17 +286,9 @@ def _save_result(path: Path, result: SolveResult) -> None:
             arrays[f.name] = np.array(value, dtype=np.str_)
         else:
             arrays[f.name] = np.asarray(value)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    fd, tmp = tempfile.mkstemp(prefix=".tmp-", suffix=".npz", dir=path.parent)
-    try:
-        with os.fdopen(fd, "wb") as fh:
-            np.savez(fh, **arrays)
-            fh.flush()
-            os.fsync(fh.fileno())
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    buffer = io.BytesIO()
+    np.savez(buffer, **arrays)
+    atomic_write_bytes(path, buffer.getvalue())
 
 
 def _load_result(path: Path) -> SolveResult:

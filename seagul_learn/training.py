@@ -61,14 +61,14 @@ import numpy as np
 import torch
 from tqdm.auto import tqdm
 
+from seagul_control._io import atomic_write_bytes, atomic_write_text
+from seagul_control._io import cache_dir as seagul_cache_dir
 from seagul_envs import Task, available_tasks, make_task
 from seagul_learn.closed_loop import ClosedLoopOptions, ClosedLoopSampler
 from seagul_learn.dataset import (
     Dataset,
     SolveRecord,
     TrainingArrays,
-    atomic_write_bytes,
-    atomic_write_text,
     count_failures,
     training_arrays,
 )
@@ -316,8 +316,8 @@ VALIDATION_SPECS: dict[str, ValidationSpec] = {
 
 
 def default_cache_dir() -> Path:
-    """``$SEAGUL_CACHE_DIR`` or ``~/.cache/seagul``."""
-    return Path(os.environ.get("SEAGUL_CACHE_DIR") or Path.home() / ".cache" / "seagul")
+    """``$SEAGUL_CACHE_DIR`` or ``~/.cache/seagul`` (:func:`seagul_control._io.cache_dir`)."""
+    return seagul_cache_dir()
 
 
 def validation_dataset(

@@ -8,6 +8,9 @@ import numpy as np
 import pytest
 from toy_problem import ToySolver
 
+import seagul_learn.dataset
+from seagul_control import _io
+from seagul_control._io import atomic_write_bytes, atomic_write_text
 from seagul_envs import make_task
 from seagul_learn.dataset import Dataset, DatasetError, SolveRecord, training_arrays
 
@@ -101,3 +104,70 @@ def test_corrupt_record_is_reported(tmp_path, toy):
     ds.record_path(7).write_bytes(b"garbage")
     with pytest.raises(DatasetError, match=r"solve-000007\.npz.*corrupt"):
         ds.read(7)
+
+
+# ------------------------------------------------------------------------------------------ the atomic writer
+def test_atomic_writes_round_trip_and_leave_no_temp_files(tmp_path):
+    target = tmp_path / "new" / "dir" / "file.bin"
+    atomic_write_bytes(target, b"\x00\x01 payload")
+    assert target.read_bytes() == b"\x00\x01 payload"
+    atomic_write_text(target, "replaced: \u03c4")
+    assert target.read_text(encoding="utf-8") == "replaced: \u03c4"
+    assert [p.name for p in target.parent.iterdir()] == ["file.bin"]
+    # The learning code's writers are the one shared helper (torch-free, importable from every package).
+    assert seagul_learn.dataset.atomic_write_bytes is atomic_write_bytes
+    assert seagul_learn.dataset.atomic_write_text is atomic_write_text
+
+
+@pytest.mark.parametrize("failing", ["write", "fsync", "replace"])
+def test_failed_atomic_write_leaves_the_old_file_intact(tmp_path, monkeypatch, failing):
+    target = tmp_path / "state.json"
+    atomic_write_text(target, '{"old": true}')
+
+    class Boom(OSError):
+        pass
+
+    def boom(*args, **kwargs):
+        raise Boom(f"simulated {failing} failure")
+
+    if failing == "write":
+        # A payload that fails half-way through the write (e.g. a full disk) after some bytes reached the temp file.
+        real_fdopen = _io.os.fdopen
+
+        class HalfFile:
+            def __init__(self, fh):
+                self.fh = fh
+
+            def __enter__(self):
+                return self
+
+            def __exit__(self, *exc):
+                self.fh.close()
+
+            def write(self, data):
+                self.fh.write(data[: len(data) // 2])
+                raise Boom("No space left on device")
+
+        monkeypatch.setattr(_io.os, "fdopen", lambda fd, mode: HalfFile(real_fdopen(fd, mode)))
+    else:
+        monkeypatch.setattr(_io.os, failing, boom)
+    with pytest.raises(Boom):
+        atomic_write_text(target, '{"new": "a longer replacement that must never be seen torn"}')
+    monkeypatch.undo()
+    assert target.read_text() == '{"old": true}'
+    assert [p.name for p in tmp_path.iterdir()] == ["state.json"]  # the temp file was removed
+
+
+def test_failed_record_write_keeps_the_dataset_readable(tmp_path, toy, monkeypatch):
+    ds = Dataset.open(tmp_path / "d", "acrobot")
+    ds.write(_record(toy, 0))
+
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(_io.os, "fsync", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        ds.write(_record(toy, 1))
+    monkeypatch.undo()
+    assert ds.indices() == [0] and not list(ds.records_dir.glob(".tmp-*"))
+    assert ds.read(0).index == 0

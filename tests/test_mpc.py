@@ -11,12 +11,13 @@ import pytest
 import scipy.linalg
 
 import seagul_envs  # noqa: F401  (registers the envs)
-from seagul_control.mpc import FullHorizonMPC, LimitedLookaheadMPC, _Problem
+from seagul_control.mpc import FullHorizonMPC, LimitedLookaheadMPC, _Plan, _Problem, _shift_guess
 from seagul_control.transcription import Transcription
 from seagul_envs import make_task
 
 # Interpreted solvers keep the default suite free of minutes of C compilation.
 FAST = {"jit": False}
+GLIDER_X0 = np.array([-3.5, 0.1, 0.0, 0.0, 7.0, 0.0, 0.0])
 
 
 class QuadraticValue:
@@ -337,3 +338,78 @@ def test_jit_object_cache_is_keyed_by_the_generated_source(tmp_path):
         objects.append(sorted(f.name for f in tmp_path.glob("*.o")))
     assert len(objects[0]) == 1 and objects[1] == objects[0]  # the second build reused the cached object
     assert (tmp_path / "seagul_cc.py").is_file()
+
+
+# ------------------------------------------------------------------------ the MPC uses the transcription's public API
+def _glider_final_problem(shrink: bool) -> _Problem:
+    task = make_task("glider")
+    hi = max(task.step_bounds[1], task.control_period)
+    trans = Transcription(task, 5, free_time=True, step_bounds=(0.0, hi), time_mode="equal", final_box=True)
+    return _Problem(trans, "final", True, shrink, task.step_bounds[0])
+
+
+@pytest.mark.parametrize("shrink", [False, True])
+def test_first_step_pin_and_shrinking_steps_go_through_the_setters(monkeypatch, shrink):
+    problem = _glider_final_problem(shrink)
+    trans, task = problem.trans, problem.trans.task
+    seen = []
+    monkeypatch.setattr(trans, "solve", lambda *a, **k: seen.append([trans.get(s, "lbh")[0] for s in range(5)]))
+    lo0, hi0 = trans.get(1, "lbh")[0], trans.get(1, "ubh")[0]
+    dt = 0.05
+    for tau in (0.3, 0.02):
+        problem.solve(GLIDER_X0, tau, np.zeros(0), dt, trans.line_guess(GLIDER_X0, tau))
+        h0 = min(dt, tau)
+        assert trans.get(0, "lbh")[0] == trans.get(0, "ubh")[0] == h0
+        rest = max(tau - h0, 0.0) / 4
+        for k in range(1, 5):
+            expect = (min(task.step_bounds[0], 0.5 * rest), max(trans.step_bounds[1], rest)) if shrink else (lo0, hi0)
+            assert (trans.get(k, "lbh")[0], trans.get(k, "ubh")[0]) == expect
+    assert len(seen) == 2
+
+
+@pytest.mark.parametrize("name", ["acrobot", "glider"])
+def test_shifted_multipliers_match_the_stage_layout(name):
+    """_shift_guess through the public index maps equals the stage-by-stage shift on the raw index lists."""
+    task = make_task(name)
+    if name == "glider":
+        problem = _glider_final_problem(True)
+    else:
+        problem = _Problem(Transcription(task, 5, free_time=False, step=0.1, final_box=False), "lookahead", False)
+    trans = problem.trans
+    n, nx, a = trans.horizon, task.nx, 2
+    rng = np.random.default_rng(3)
+    plan = _Plan(
+        problem,
+        rng.normal(size=(n + 1, nx)),
+        rng.normal(size=(n, task.nu)),
+        rng.uniform(0.01, 0.03, n),
+        rng.normal(size=trans.num_variables),
+        rng.normal(size=trans._lbg.size),
+        age=a,
+    )
+    x = rng.normal(size=nx)
+    primal, lam_g, lam_x = _shift_guess(plan, problem, x, 0.05, 0.5)
+
+    def shifted(rows):
+        arr = np.stack(rows)
+        tail = arr[min(a, arr.shape[0] - 1) :]
+        return np.concatenate([tail, np.repeat(tail[-1:], max(0, len(rows) - tail.shape[0]), axis=0)])[: len(rows)]
+
+    lx = plan.lam_x
+    want_x = np.zeros(trans.num_variables)
+    for idx, vals in zip(trans._x_idx, shifted([lx[i] for i in trans._x_idx]), strict=True):
+        want_x[idx] = vals
+    for idx, vals in zip(trans._u_idx, shifted([lx[i] for i in trans._u_idx]), strict=True):
+        want_x[idx] = vals
+    if trans.free_time:
+        want_x[trans._h_idx] = shifted([lx[i] for i in trans._h_idx])
+        want_x[trans._t_idx] = shifted([lx[i] for i in trans._t_idx])
+    np.testing.assert_array_equal(lam_x, want_x)
+    want_g = plan.lam_g.copy()
+    want_g[:nx] = plan.lam_g[trans._defect_rows[a - 1]]
+    for rows, vals in zip(trans._defect_rows, shifted([plan.lam_g[r] for r in trans._defect_rows]), strict=True):
+        want_g[rows] = vals
+    np.testing.assert_array_equal(lam_g, want_g)
+    np.testing.assert_array_equal(primal[trans.state_index[0]], x)
+    other = _Problem(Transcription(task, n, free_time=trans.free_time, step=trans.step), "other", False)
+    assert _shift_guess(plan, other, x, 0.05, 0.5)[1:] == (None, None)  # another layout: no multipliers

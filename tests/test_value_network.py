@@ -81,6 +81,23 @@ def test_save_load_round_trip(tmp_path):
     assert list(tmp_path.joinpath("sub").iterdir()) == [path]  # no temp file left behind
 
 
+def test_failed_save_keeps_the_previous_network(tmp_path, monkeypatch):
+    from seagul_control import _io
+
+    old, new = _trained_like_network(seed=0), _trained_like_network(seed=1)
+    path = old.save(tmp_path / "net.pt")
+
+    def full_disk(*args, **kwargs):
+        raise OSError(28, "No space left on device")
+
+    monkeypatch.setattr(_io.os, "replace", full_disk)
+    with pytest.raises(OSError, match="No space left"):
+        new.save(path)
+    monkeypatch.undo()
+    np.testing.assert_array_equal(ValueNetwork.load(path).casadi_parameters(), old.casadi_parameters())
+    assert list(tmp_path.iterdir()) == [path]
+
+
 def test_load_missing_file(tmp_path):
     with pytest.raises(ValueNetworkFileError, match=r"nope\.pt.*does not exist"):
         ValueNetwork.load(tmp_path / "nope.pt")
