@@ -2,13 +2,30 @@
 
 Importing this package registers ``SeagulAcrobot-v0``, ``SeagulAcrobotMujoco-v0`` and ``SeagulGlider-v0``
 (idempotently), so ``gym.make("seagul_envs:SeagulGlider-v0")`` also works in subprocess vector envs.
+
+Custom tasks: :func:`make_env` turns any :class:`Task` into an env with the built-ins' conventions, and
+:func:`register_task` adds a task factory to :func:`make_task` and to ``gym.make`` (in the calling process; workers
+must import the module that registers it, or receive the Task by pickling).
 """
 
 from __future__ import annotations
 
-from seagul_envs.registration import ENV_IDS, register_envs
-from seagul_envs.tasks import Task, available_tasks, make_task
+from seagul_envs.envs.task_env import TaskEnv, make_env
+from seagul_envs.registration import ENV_IDS, register_envs, register_task, task_env_id, unregister_task
+from seagul_envs.tasks import Task, available_tasks, make_task, validate_task
 
 register_envs()
 
-__all__ = ["ENV_IDS", "Task", "available_tasks", "make_task", "register_envs"]
+__all__ = [
+    "ENV_IDS",
+    "Task",
+    "TaskEnv",
+    "available_tasks",
+    "make_env",
+    "make_task",
+    "register_envs",
+    "register_task",
+    "task_env_id",
+    "unregister_task",
+    "validate_task",
+]

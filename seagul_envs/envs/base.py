@@ -31,7 +31,7 @@ import numpy as np
 from gymnasium import logger, spaces
 
 from seagul_envs.rendering import HumanViewer
-from seagul_envs.tasks import make_task
+from seagul_envs.tasks import BUILTIN_TASKS, make_task, shared_task
 from seagul_envs.tasks.base import Task
 
 _RESET_OPTION_KEYS = frozenset({"state", "time_to_go"})
@@ -346,7 +346,8 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
         for key in self._runtime_keys():
             state.pop(key, None)
         state["_viewer"] = None
-        # The registry's shared task is restored by name (cheap, keeps the simulator cache); a custom task pickles.
+        # A built-in task's shared object is restored by name (cheap, keeps the simulator cache); any other task
+        # (custom, or registered with register_task, which the receiving process may not know) pickles by value.
         if self.task is _shared_task(self.task.name):
             state["task"] = self.task.name
         return state
@@ -375,10 +376,8 @@ def _positive_seconds(value: Any, what: str) -> float:
 
 
 def _shared_task(name: str) -> Task | None:
-    try:
-        return make_task(name)
-    except ValueError:
-        return None
+    """The shared object of the built-in task ``name`` if this process has built it (never builds one)."""
+    return shared_task(name) if name in BUILTIN_TASKS else None
 
 
 class TaskSimulatorEnv(SeagulEnv):

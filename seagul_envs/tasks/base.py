@@ -9,11 +9,14 @@ the CasADi expressions (never retyped).
 from __future__ import annotations
 
 import functools
+import re
 from dataclasses import dataclass, field
 from typing import Any
 
 import casadi as ca
 import numpy as np
+
+_TASK_NAME = re.compile(r"[A-Za-z][A-Za-z0-9]*(?:_[A-Za-z0-9]+)*")  # a CasADi Function name that takes "_suffix"
 
 
 @dataclass(frozen=True, eq=False)
@@ -163,6 +166,134 @@ class Task:
 
     def __repr__(self) -> str:
         return f"Task({self.name!r}, nx={self.nx}, nu={self.nu}, m={self.num_steps}, tau={self.tau_range})"
+
+
+def validate_task(task: Any) -> Task:
+    """Check that ``task`` is a well-formed :class:`Task`; return it, or raise naming every problem found.
+
+    Checks the types of the fields, the signatures of the CasADi functions (``dynamics: (nx, nu) -> nx``,
+    ``stage_cost: (nx, nu) -> scalar``, ``terminal_cost: nx -> scalar``, all callable on SX symbols as the simulator
+    and the transcription need), the shapes and ordering of the boxes (finite input bounds and X0, X0 inside the state
+    bounds), and the positivity of the times and counts. Custom tasks go through it before an env is built for them
+    (:func:`seagul_envs.make_env`, :func:`seagul_envs.register_task`).
+
+    Raises:
+        TypeError: ``task`` is not a :class:`Task`.
+        ValueError: the task is malformed (the message lists each problem).
+    """
+    if not isinstance(task, Task):
+        raise TypeError(f"expected a seagul_envs Task, got {type(task).__name__}")
+    name = task.name
+    problems: list[str] = []
+    if not (isinstance(task.name, str) and _TASK_NAME.fullmatch(task.name)):
+        problems.append(
+            f"name must be a letter followed by letters, digits and single underscores (it names the task's CasADi "
+            f"functions), got {task.name!r}"
+        )
+    for what, names in (("state_names", task.state_names), ("control_names", task.control_names)):
+        if not (isinstance(names, tuple) and names and all(isinstance(n, str) for n in names)):
+            problems.append(f"{what} must be a non-empty tuple of str, got {names!r}")
+    if problems:  # sizes below are meaningless without the names
+        raise ValueError(f"malformed task {name!r}: " + "; ".join(problems))
+    nx, nu = task.nx, task.nu
+
+    def check_function(what: str, fn: Any, inputs: tuple[int, ...]) -> None:
+        if not isinstance(fn, ca.Function):
+            problems.append(f"{what} must be a casadi.Function, got {type(fn).__name__}")
+            return
+        sizes = tuple(fn.size_in(i) for i in range(fn.n_in()))
+        want_in = tuple((n, 1) for n in inputs)
+        want_out = (nx, 1) if what == "dynamics" else (1, 1)
+        if sizes != want_in or fn.n_out() < 1 or fn.size_out(0) != want_out:
+            got_out = fn.size_out(0) if fn.n_out() else None
+            problems.append(
+                f"{what} must map inputs of shapes {list(want_in)} to {want_out}, got {list(sizes)} -> {got_out}"
+            )
+            return
+        try:
+            fn(*(ca.SX.sym("s", n) for n in inputs))
+        except Exception as e:  # e.g. an MX Function with a linear solver: no SX evaluation
+            last_line = str(e).strip().splitlines()[-1] if str(e).strip() else type(e).__name__
+            problems.append(
+                f"{what} cannot be evaluated on SX symbols (build it from SX, or .expand() it): {last_line}"
+            )
+
+    check_function("dynamics", task.dynamics, (nx, nu))
+    check_function("stage_cost", task.stage_cost, (nx, nu))
+    check_function("terminal_cost", task.terminal_cost, (nx,))
+
+    def array(what: str, n: int, finite: bool = False) -> np.ndarray | None:
+        value = getattr(task, what)
+        if not isinstance(value, np.ndarray):
+            problems.append(f"{what} must be a numpy array, got {type(value).__name__}")
+            return None
+        if value.shape != (n,):
+            problems.append(f"{what} must have shape ({n},), got {value.shape}")
+            return None
+        if not np.issubdtype(value.dtype, np.number) or np.isnan(value.astype(np.float64)).any():
+            problems.append(f"{what} must be real numbers (no NaN), got {value.tolist()}")
+            return None
+        if finite and not np.isfinite(value).all():
+            problems.append(f"{what} must be finite, got {value.tolist()}")
+            return None
+        return value.astype(np.float64)
+
+    array("goal", nx, finite=True)
+    boxes = {}
+    for lo, hi, n, finite in (
+        ("u_low", "u_high", nu, True),
+        ("x_low", "x_high", nx, False),
+        ("x_final_low", "x_final_high", nx, False),
+        ("x0_low", "x0_high", nx, True),
+    ):
+        a, b = array(lo, n, finite), array(hi, n, finite)
+        if a is not None and b is not None:
+            if np.any(a > b):
+                problems.append(f"{lo} must be <= {hi}, got {a.tolist()} and {b.tolist()}")
+            else:
+                boxes[lo] = (a, b)
+    if "x0_low" in boxes and "x_low" in boxes:
+        (a0, b0), (a, b) = boxes["x0_low"], boxes["x_low"]
+        if np.any(a0 < a) or np.any(b0 > b):
+            problems.append("the start box X0 [x0_low, x0_high] must lie inside the state bounds [x_low, x_high]")
+
+    def positive(what: str, value: Any, integer: bool = False) -> None:
+        ok = (
+            isinstance(value, (int, np.integer))
+            if integer
+            else isinstance(value, (int, float, np.integer, np.floating))
+        )
+        if not ok or isinstance(value, bool) or not (np.isfinite(value) and value > 0):
+            kind = "a positive int" if integer else "a positive finite number"
+            problems.append(f"{what} must be {kind}, got {value!r}")
+
+    tau_range = task.tau_range
+    if not (isinstance(tau_range, tuple) and len(tau_range) == 2):
+        problems.append(f"tau_range must be a (low, high) tuple, got {tau_range!r}")
+    else:
+        positive("tau_range[0]", tau_range[0])
+        positive("tau_range[1]", tau_range[1])
+        positive("tau_nominal", task.tau_nominal)
+        try:
+            if not tau_range[0] <= task.tau_nominal <= tau_range[1]:
+                problems.append(f"tau_nominal {task.tau_nominal} must lie in tau_range {tau_range}")
+        except TypeError:
+            pass  # reported above
+    step_bounds = task.step_bounds
+    if not (isinstance(step_bounds, tuple) and len(step_bounds) == 2):
+        problems.append(f"step_bounds must be a (low, high) tuple, got {step_bounds!r}")
+    else:
+        positive("step_bounds[0]", step_bounds[0])
+        positive("step_bounds[1]", step_bounds[1])
+    positive("num_steps", task.num_steps, integer=True)
+    positive("rk4_substeps", task.rk4_substeps, integer=True)
+    positive("control_period", task.control_period)
+    positive("max_sim_substep", task.max_sim_substep)
+    if not isinstance(task.extras, dict):
+        problems.append(f"extras must be a dict, got {type(task.extras).__name__}")
+    if problems:
+        raise ValueError(f"malformed task {name!r}: " + "; ".join(problems))
+    return task
 
 
 def rk4_map(dynamics: ca.Function, nx: int, nu: int, substeps: int, name: str = "rk4") -> ca.Function:

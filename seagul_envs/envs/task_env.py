@@ -1,0 +1,159 @@
+"""A Gymnasium env for any :class:`~seagul_envs.tasks.base.Task`: :class:`TaskEnv` and :func:`make_env`."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import gymnasium as gym
+import numpy as np
+from gymnasium.envs.registration import EnvSpec
+
+from seagul_envs.envs.base import TaskSimulatorEnv
+from seagul_envs.tasks import AcrobotParams, GliderParams, Task, make_task, shared_task, validate_task
+
+Renderer = Callable[[Task, np.ndarray, np.ndarray, float], np.ndarray]
+"""``renderer(task, state, last_action, time_to_go) -> (H, W, 3) uint8 frame``: how a custom task draws itself."""
+
+BUILTIN_ENVS: dict[str, tuple[str, type]] = {
+    "acrobot": ("SeagulAcrobot-v0", AcrobotParams),
+    "glider": ("SeagulGlider-v0", GliderParams),
+}
+"""Built-in task name -> (its analytic env's Gymnasium id, the parameter class that marks a task of that system)."""
+
+
+class TaskEnv(TaskSimulatorEnv):
+    """Any :class:`~seagul_envs.tasks.base.Task` as a Gymnasium env, with the conventions of the built-in envs.
+
+    ## Description
+
+    Simulates ``task.dynamics`` with RK4 substeps of at most ``max_substep`` over each control period ``dt``, the
+    action held constant (zero-order hold): the same ``task.simulator(dt)`` as the trajectory optimizer and the MPC.
+    Usually made with :func:`seagul_envs.make_env` (or ``gym.make`` of the id returned by
+    :func:`seagul_envs.register_task`); the built-in tasks have their own env classes.
+
+    ## Action Space
+
+    ``Box(task.u_low, task.u_high, (nu,), float32)`` in the task's physical units. Actions outside the box are
+    clipped; a NaN/inf or wrongly shaped action raises ValueError and leaves the env unchanged.
+
+    ## Observation Space
+
+    ``Box((nx + 1,), float32)``: the state ``x`` (``task.state_names``) followed by the time to go (s).
+    ``info["state"]`` holds the float64 state and ``info["time_to_go"]`` the time to go.
+
+    ## Rewards
+
+    ``-h * l(x_k, u_k)`` per step of length ``h`` (``l = task.stage_cost`` at the start of the step, the
+    transcription's left-point rule), plus ``-l_f(x_end)`` (``task.terminal_cost``) on the step where the episode
+    ends: an episode's return is minus the trajectory cost of the optimal-control problem.
+
+    ## Starting State
+
+    Uniform in X0 = ``[task.x0_low, task.x0_high]``, time to go ``task.tau_nominal``.
+    ``reset(options={"state": x0, "time_to_go": tau})`` chooses any start inside the state bounds and any ``tau`` in
+    ``(0, max T0]``.
+
+    ## Episode End
+
+    * Termination: the state leaves ``[task.x_low, task.x_high]`` (1e-8 slack) or stops being finite (never, if the
+      state is unbounded).
+    * Truncation: the time to go reaches 0 after ``ceil(tau / dt)`` steps (the last one shortened if ``tau`` is not
+      a multiple of ``dt``).
+
+    ## Arguments
+
+    ``TaskEnv(task, dt=None, render_mode=None, max_substep=None, renderer=None)``: ``dt`` the control period
+    (default ``task.control_period``), ``max_substep`` the largest RK4 substep (default ``task.max_sim_substep``).
+    ``render_mode`` (``"rgb_array"`` or ``"human"``) needs a :data:`Renderer`: ``renderer`` or
+    ``task.extras["renderer"]``. Without one, ``metadata["render_modes"]`` is empty, ``render_mode`` must be None
+    (anything else raises ValueError) and ``render()`` warns and returns None, as Gymnasium expects.
+    """
+
+    # The class lists every mode a TaskEnv can have (gym.make reads it before construction); each instance narrows it
+    # to the modes its task supports.
+    metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}  # noqa: RUF012 (Gymnasium convention)
+
+    def __init__(
+        self,
+        task: Task,
+        dt: float | None = None,
+        render_mode: str | None = None,
+        max_substep: float | None = None,
+        renderer: Renderer | None = None,
+    ) -> None:
+        validate_task(task)
+        renderer = task.extras.get("renderer") if renderer is None else renderer
+        if renderer is not None and not callable(renderer):
+            raise TypeError(f"{task.name}: renderer must be a callable (see seagul_envs.envs.task_env.Renderer)")
+        if render_mode is not None and renderer is None:
+            raise ValueError(
+                f"{task.name}: render_mode={render_mode!r} needs a renderer, and this task provides none; put a "
+                "renderer(task, state, last_action, time_to_go) -> RGB array in task.extras['renderer'] or pass "
+                "make_env(task, renderer=...), or use render_mode=None"
+            )
+        self.renderer = renderer
+        self.metadata = {"render_modes": ["human", "rgb_array"] if renderer is not None else [], "render_fps": 10}
+        super().__init__(task, dt=dt, render_mode=render_mode, max_substep=max_substep)
+        self.metadata["render_fps"] = max(1, round(1.0 / self.dt))
+
+    def _render_frame(self) -> np.ndarray:
+        assert self.renderer is not None  # render_mode is None without one
+        frame = np.asarray(self.renderer(self.task, self._x.copy(), self._last_u.copy(), self.time_to_go))
+        if frame.dtype != np.uint8 or frame.ndim != 3 or frame.shape[2] != 3:
+            raise ValueError(
+                f"{self.task.name}: the renderer must return an (H, W, 3) uint8 array, got {frame.dtype} of shape "
+                f"{frame.shape}"
+            )
+        return frame
+
+
+def env_class_for(task: Task) -> type[TaskSimulatorEnv]:
+    """The env class that simulates ``task``: a built-in system's own class (it renders, and the glider's has its
+    elevator stop), recognised by name *and* parameter class, else the generic :class:`TaskEnv`."""
+    from seagul_envs.envs.acrobot import AcrobotEnv
+    from seagul_envs.envs.glider import GliderEnv
+
+    builtin = BUILTIN_ENVS.get(task.name)
+    if builtin is not None and isinstance(task.params, builtin[1]):
+        return {"acrobot": AcrobotEnv, "glider": GliderEnv}[task.name]
+    return TaskEnv
+
+
+def make_env(task: Task | str, **kwargs: Any) -> gym.Env:
+    """A Gymnasium env for ``task`` (any :class:`Task`, or a task name), made like ``gym.make`` makes the built-ins.
+
+    The result is what ``gym.make`` returns (the env wrapped in Gymnasium's env checker and order enforcing;
+    ``.unwrapped`` is the seagul env, with ``spec`` set so ``env.spec.make()`` makes a copy):
+
+    * a built-in task (``make_task("acrobot")``, or a variant of the same system such as
+      ``make_acrobot_task(AcrobotParams(b1=0))``) gives its built-in env, exactly ``gym.make("SeagulAcrobot-v0")``
+      (``task=`` the variant); ``make_env("glider")`` is ``gym.make("SeagulGlider-v0")``;
+    * the shared task of a name registered with :func:`seagul_envs.register_task` gives ``gym.make`` of its id;
+    * any other task gives a :class:`TaskEnv` (observation = state + time to go, action = the task's input box,
+      reward = ``-h l(x, u)`` per step and ``-l_f`` at the end, ``reset(options={"state", "time_to_go"})``).
+
+    ``kwargs`` are the env's (``dt``, ``render_mode``, ``max_substep``; ``renderer`` for a :class:`TaskEnv`) and
+    ``gym.make``'s own (``max_episode_steps``, ``disable_env_checker``, ...). An unregistered task travels inside the
+    env (and its spec): pickling the env pickles the Task by value, so workers need not know the task's name.
+
+    Raises:
+        TypeError: ``task`` is neither a Task nor a name.
+        ValueError: an unknown name, or a malformed Task (see :func:`~seagul_envs.tasks.base.validate_task`).
+    """
+    if isinstance(task, str):
+        task = make_task(task)
+    if not isinstance(task, Task):
+        raise TypeError(f"make_env needs a seagul_envs Task or a task name, got {type(task).__name__}")
+    cls = env_class_for(task)
+    if cls is not TaskEnv:
+        env_id = BUILTIN_ENVS[task.name][0]
+        return gym.make(env_id, **kwargs) if task is shared_task(task.name) else gym.make(env_id, task=task, **kwargs)
+    validate_task(task)
+    from seagul_envs.registration import TASK_ENV_IDS, task_env_id
+
+    registered_id = TASK_ENV_IDS.get(task.name)
+    if registered_id is not None and task is shared_task(task.name):
+        return gym.make(registered_id, **kwargs)
+    spec = EnvSpec(id=task_env_id(task.name), entry_point=TaskEnv, disable_env_checker=False)
+    return gym.make(spec, task=task, **kwargs)
