@@ -1,7 +1,8 @@
 #!/usr/bin/env bash
-# Set up ./.venv and run the default test suite (slow tests are opt-in: `-m slow`).
+# Set up ./.venv, lint (ruff), type-check (mypy) and run the default test suite (slow tests are opt-in: `-m slow`).
 set -euo pipefail
 cd "$(dirname "$0")/.."
 bash scripts/setup.sh
 .venv/bin/python -m ruff check .
+.venv/bin/python -m mypy seagul_envs seagul_control seagul_learn
 exec .venv/bin/python -m pytest -n 2 -q "$@"

@@ -557,7 +557,12 @@ class LimitedLookaheadMPC(_MPCBase):
         self.substeps = substeps
         self._final_fixed: dict[int, _Problem] = {}
         self._final: _Problem | None = None
-        common = {"horizon": self.horizon, "terminal_cost": terminal, "n_theta": n_theta, "substeps": substeps}
+        common: dict[str, Any] = {
+            "horizon": self.horizon,
+            "terminal_cost": terminal,
+            "n_theta": n_theta,
+            "substeps": substeps,
+        }
         if not self.free_time:
             self._lookahead = self._build("lookahead", False, free_time=False, step=self.dt, final_box=False, **common)
         else:

@@ -151,7 +151,7 @@ def find_c_compiler() -> str | None:
     return None
 
 
-def compile_nlp_library(solver: ca.Function, name: str, cache_dir: Path | None = None) -> Path:
+def compile_nlp_library(solver: ca.Function, name: str, cache_dir: str | os.PathLike[str] | None = None) -> Path:
     """Generate C for the NLP functions of ``solver``, compile them once per distinct source, return the library.
 
     The cache key is a hash of the generated source, the compiler and its flags (and the CasADi version, which shapes
@@ -176,7 +176,7 @@ def compile_nlp_library(solver: ca.Function, name: str, cache_dir: Path | None =
             os.chdir(cwd)
         src = Path(tmp) / f"{name}.c"
         digest = hashlib.sha256()
-        for part in (ca.__version__, cc, *CODEGEN_FLAGS):
+        for part in (ca.__version__, cc, *CODEGEN_FLAGS):  # type: ignore[attr-defined]  # missing from casadi.pyi
             digest.update(part.encode() + b"\0")
         digest.update(src.read_bytes())
         lib = cache / f"{name}_{digest.hexdigest()[:20]}.so"
@@ -318,7 +318,8 @@ class Transcription:
         self.horizon = n
         self.free_time = (not task.fixed_step) if free_time is None else bool(free_time)
         self.step = None if step is None else float(step)
-        self.step_bounds = tuple(task.step_bounds if step_bounds is None else step_bounds)
+        lo_step, hi_step = task.step_bounds if step_bounds is None else step_bounds
+        self.step_bounds: tuple[float, float] = (lo_step, hi_step)
         self.time_mode: TimeMode = time_mode
         self.final_box = final_box
         self.n_theta = int(n_theta)
@@ -385,6 +386,7 @@ class Transcription:
             add_con(ca.vertcat(x_k - x_init, t_k), 0.0, 0.0)
         else:
             add_con(x_k - x_init, 0.0, 0.0)
+        h_k: ca.MX | float  # a decision variable with free time, else the fixed step
         for k in range(n):
             u_k = ca.MX.sym(f"u_{k}", nu)
             self._u_idx.append(add_var(u_k, task.u_low, task.u_high))
@@ -410,7 +412,7 @@ class Transcription:
                 self._defect_rows.append(add_con(x_next - F(x_k, u_k, h_k), 0.0, 0.0))
             x_k = x_next
         if self.free_time:
-            elapsed = t_k
+            elapsed: ca.MX | float = t_k
             if time_mode == "equal":
                 self._time_row = int(add_con(t_k - tau, 0.0, 0.0)[0])
             elif time_mode == "at_most":
@@ -442,20 +444,19 @@ class Transcription:
             options = {**default_fatrop_options(), "expand": True, "equality": equality, **(solver_options or {})}
         name = f"{task.name}_{solver}_n{n}"
         self.codegen_library: Path | None = None
-        self._solver: ca.Function | None = None
+        compiled: ca.Function | None = None
         if codegen:
             try:
                 # Unexpanded: the generated C then holds one function per stage-level derivative, not n copies.
                 plain = ca.nlpsol(name, solver, nlp, {**options, "expand": False})
                 self.codegen_library = compile_nlp_library(plain, name, codegen_dir)
                 lib_options = {k: v for k, v in options.items() if k != "expand"}
-                self._solver = ca.nlpsol(name, solver, str(self.codegen_library), lib_options)
+                compiled = ca.nlpsol(name, solver, str(self.codegen_library), lib_options)
             except (RuntimeError, OSError) as exc:
                 warnings.warn(f"{name}: code generation unavailable ({exc}); solving interpreted", stacklevel=2)
                 self.codegen_library = None
-                self._solver = None
-        if self._solver is None:
-            self._solver = ca.nlpsol(name, solver, nlp, options)
+                compiled = None
+        self._solver: ca.Function = ca.nlpsol(name, solver, nlp, options) if compiled is None else compiled
         # Stage costs and elapsed time of a solution, for per-knot labels.
         self._stage_cost_fn = task.stage_cost.map(n)
 

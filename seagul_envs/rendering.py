@@ -17,6 +17,8 @@ from typing import Any
 import numpy as np
 
 Color = tuple[int, int, int]
+Point = Sequence[float] | np.ndarray
+"""A world point ``(x, y)``: a pair of floats or a length-2 array."""
 
 BACKGROUND: Color = (255, 255, 255)
 LINK: Color = (0, 102, 204)
@@ -41,7 +43,7 @@ class Canvas:
         self.x_mid = 0.5 * (x0 + x1)
         self.y_mid = 0.5 * (y0 + y1)
 
-    def to_pixel(self, point: Sequence[float]) -> tuple[float, float]:
+    def to_pixel(self, point: Point) -> tuple[float, float]:
         """World ``(x, y)`` to pixel ``(column, row)`` (floats, pixel centres at integers)."""
         col = (point[0] - self.x_mid) * self.scale + 0.5 * self.width - 0.5
         row = -(point[1] - self.y_mid) * self.scale + 0.5 * self.height - 0.5
@@ -53,7 +55,7 @@ class Canvas:
         patch = patch * (1.0 - alpha) + np.asarray(color, dtype=np.float32) * alpha
         self.image[rows, cols] = np.clip(patch + 0.5, 0, 255).astype(np.uint8)
 
-    def segment(self, p0: Sequence[float], p1: Sequence[float], width_px: float, color: Color) -> None:
+    def segment(self, p0: Point, p1: Point, width_px: float, color: Color) -> None:
         """A thick segment with round caps between two world points (anti-aliased)."""
         a = np.array(self.to_pixel(p0))
         b = np.array(self.to_pixel(p1))
@@ -75,11 +77,11 @@ class Canvas:
         coverage = np.clip(r + 0.5 - dist, 0.0, 1.0).astype(np.float32)
         self._blend(slice(r0, r1 + 1), slice(c0, c1 + 1), coverage, color)
 
-    def disc(self, center: Sequence[float], radius_px: float, color: Color) -> None:
+    def disc(self, center: Point, radius_px: float, color: Color) -> None:
         """A filled disc (a zero-length segment)."""
         self.segment(center, center, 2.0 * radius_px, color)
 
-    def dashed(self, p0: Sequence[float], p1: Sequence[float], width_px: float, color: Color, dashes: int = 20) -> None:
+    def dashed(self, p0: Point, p1: Point, width_px: float, color: Color, dashes: int = 20) -> None:
         """A dashed segment made of ``dashes`` pieces."""
         a, b = np.asarray(p0, dtype=float), np.asarray(p1, dtype=float)
         for i in range(dashes):
@@ -193,6 +195,8 @@ def _interactive_backend() -> bool:
         return False
     backend = matplotlib.get_backend().lower()
     try:
-        return backend not in backend_registry.list_builtin(backend_registry.BackendFilter.NON_INTERACTIVE)
-    except AttributeError:  # older matplotlib without the registry API
+        # The enum lives in the registry module (the registry object has no ``BackendFilter`` attribute).
+        from matplotlib.backends.registry import BackendFilter
+    except ImportError:  # older matplotlib without the registry API
         return backend not in {"agg", "pdf", "ps", "svg", "cairo", "template", "pgf"}
+    return backend not in backend_registry.list_builtin(BackendFilter.NON_INTERACTIVE)

@@ -54,7 +54,7 @@ from seagul_envs import Task
 from seagul_learn.dataset import SolveRecord, TrainingArrays
 from seagul_learn.samplers import StartPool
 from seagul_learn.solving import SolveRunner, tail_horizon
-from seagul_learn.value_network import ValueNetwork
+from seagul_learn.value_network import ValueEnsemble, ValueModel
 
 Selection = Literal["farthest", "spread", "lowest", "random"]
 SELECTIONS = ("farthest", "spread", "lowest", "random")
@@ -235,7 +235,7 @@ class ClosedLoopSampler:
         self._known_x, self._known_tau, self._known_value = buffer.x, buffer.tau, buffer.value
 
     # ------------------------------------------------------------------------------------ MPC
-    def collector(self, network: ValueNetwork) -> Any:
+    def collector(self, network: ValueModel) -> Any:
         """The MPC that collects this round's queries (built once per guard, then only re-parameterised)."""
         from seagul_control.evaluation import default_horizon
         from seagul_control.mpc import LimitedLookaheadMPC
@@ -278,7 +278,7 @@ class ClosedLoopSampler:
         keep &= np.all(np.isfinite(queries.x), axis=1)
         return np.flatnonzero(keep)
 
-    def select(self, queries: Queries, network: ValueNetwork, k: int) -> np.ndarray:
+    def select(self, queries: Queries, network: ValueModel, k: int) -> np.ndarray:
         """Indices of the ``k`` queries to solve (see ``selection``)."""
         eligible = self._eligible(queries)
         if eligible.size == 0 or k <= 0:
@@ -291,8 +291,8 @@ class ClosedLoopSampler:
         if method == "random":
             rng = np.random.default_rng([self.seed, _STREAM_SELECTION, self.round])
             picks = rng.permutation(eligible.size)[: min(k, eligible.size)]
-        elif method == "spread" and hasattr(network, "spread"):
-            spread = network.spread(queries.x[eligible], queries.tau[eligible])  # type: ignore[attr-defined]
+        elif method == "spread" and isinstance(network, ValueEnsemble):
+            spread = network.spread(queries.x[eligible], queries.tau[eligible])
             picks = np.argsort(-spread, kind="stable")[: min(k, eligible.size)]
         elif method == "lowest" and known.shape[0]:
             from scipy.spatial import cKDTree
@@ -307,7 +307,7 @@ class ClosedLoopSampler:
         return eligible[np.sort(picks)]
 
     # --------------------------------------------------------------------------------- sampling
-    def sample(self, num_solves: int, network: ValueNetwork, runner: SolveRunner) -> list[SolveRecord]:
+    def sample(self, num_solves: int, network: ValueModel, runner: SolveRunner) -> list[SolveRecord]:
         """Exactly ``num_solves`` solves: uniform draws, then tail problems at the chosen queries.
 
         If the episodes produce fewer eligible queries than needed (e.g. every step fell back), the rest of the
@@ -373,7 +373,7 @@ class QueryError:
 
 def query_errors(
     task: Task,
-    network: ValueNetwork,
+    network: ValueModel,
     queries: np.ndarray,
     batch_solver: Any,
     num: int = 50,

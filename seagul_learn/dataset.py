@@ -225,7 +225,9 @@ class Dataset:
                 return
             raise DatasetError(f"record {record.index} already exists in {str(self.path)!r}")
         buffer = io.BytesIO()
-        np.savez(buffer, **record.to_arrays())
+        # Typed ``Any`` for numpy's stub: mypy lets a ``**`` mapping of arrays bind ``savez``'s ``allow_pickle``.
+        arrays: dict[str, Any] = record.to_arrays()
+        np.savez(buffer, **arrays)
         atomic_write_bytes(path, buffer.getvalue())
 
     def read(self, index: int) -> SolveRecord:

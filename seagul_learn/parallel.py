@@ -48,7 +48,9 @@ def _optimizer(task_name: str, frozen: tuple[tuple[str, Any], ...]) -> Any:
     if key not in _OPTIMIZERS:
         from seagul_learn.trajopt import TrajectoryOptimizer
 
-        options = {k: (dict(v) if k == "solver_options" and isinstance(v, tuple) else v) for k, v in frozen}
+        options: dict[str, Any] = {
+            k: (dict(v) if k == "solver_options" and isinstance(v, tuple) else v) for k, v in frozen
+        }
         _OPTIMIZERS[key] = TrajectoryOptimizer(task_name, **options).prepare()
     return _OPTIMIZERS[key]
 

@@ -38,7 +38,7 @@ import numpy as np
 from seagul_envs import Task
 from seagul_learn.dataset import SolveRecord
 from seagul_learn.solving import SolveRunner
-from seagul_learn.value_network import ValueNetwork
+from seagul_learn.value_network import ValueModel
 
 
 @dataclass
@@ -82,8 +82,9 @@ class Sampler(Protocol):
     """Chooses and solves ``num_solves`` new problems given the current network (one round of Alg. 2)."""
 
     name: str
+    pool: StartPool
 
-    def sample(self, num_solves: int, network: ValueNetwork, runner: SolveRunner) -> list[SolveRecord]: ...
+    def sample(self, num_solves: int, network: ValueModel, runner: SolveRunner) -> list[SolveRecord]: ...
 
 
 class UniformSampler:
@@ -95,7 +96,7 @@ class UniformSampler:
         self.task = task
         self.pool = pool
 
-    def sample(self, num_solves: int, network: ValueNetwork, runner: SolveRunner) -> list[SolveRecord]:
+    def sample(self, num_solves: int, network: ValueModel, runner: SolveRunner) -> list[SolveRecord]:
         """Exactly ``num_solves`` solves (failures included)."""
         starts, taus, _ = self.pool.take(num_solves)
         return runner.solve(starts, taus, self.name)
@@ -185,7 +186,7 @@ class AdversarialSampler:
         return np.clip(u, 0.0, 1.0)
 
     # ------------------------------------------------------------------ steps
-    def loss_gradient(self, record: SolveRecord, network: ValueNetwork) -> tuple[float, np.ndarray]:
+    def loss_gradient(self, record: SolveRecord, network: ValueModel) -> tuple[float, np.ndarray]:
         """``1/2 (V - Vhat)^2`` at the record's start and its gradient in box-normalised coordinates."""
         vhat, dvhat_dx, dvhat_dtau = network.value_and_grad(record.x_init, record.tau)
         err = record.value - float(vhat)
@@ -214,7 +215,7 @@ class AdversarialSampler:
         return self._project(chain.u + np.where(self._free, du, 0.0))
 
     # --------------------------------------------------------------- sampling
-    def sample(self, num_solves: int, network: ValueNetwork, runner: SolveRunner) -> list[SolveRecord]:
+    def sample(self, num_solves: int, network: ValueModel, runner: SolveRunner) -> list[SolveRecord]:
         """Exactly ``num_solves`` solves: chains (and, if configured, uniform draws) until the budget is spent."""
         opts = self.options
         records: list[SolveRecord] = []

@@ -277,7 +277,8 @@ class CachedBatchSolver:
 
 
 def _save_result(path: Path, result: SolveResult) -> None:
-    arrays: dict[str, np.ndarray] = {}
+    # ``Any``, not ndarray, for numpy's stub: mypy lets a ``**`` mapping of arrays bind ``savez``'s ``allow_pickle``.
+    arrays: dict[str, Any] = {}
     for f in fields(SolveResult):
         value = getattr(result, f.name)
         if f.name == "attempts":

@@ -45,6 +45,7 @@ and resumed ends with the same dataset and the same weights as an uninterrupted 
 from __future__ import annotations
 
 import csv
+import functools
 import hashlib
 import io
 import itertools
@@ -74,7 +75,7 @@ from seagul_learn.dataset import (
 )
 from seagul_learn.samplers import AdversarialOptions, AdversarialSampler, Sampler, StartPool, UniformSampler
 from seagul_learn.solving import BatchSolver, SolveRunner, solver_key, trajopt_batch_solver
-from seagul_learn.value_network import ValueEnsemble, ValueNetwork
+from seagul_learn.value_network import ValueEnsemble, ValueModel, ValueNetwork
 
 SAMPLERS = ("uniform", "adversarial", "closed-loop")
 CHECKPOINT_FORMAT = "seagul-train-checkpoint"
@@ -371,7 +372,7 @@ class Metric:
 class TrainResult:
     """What :func:`train` returns (everything is also on disk in the run directory)."""
 
-    network: ValueNetwork
+    network: ValueModel
     metrics: list[Metric]
     out_dir: Path
     num_solves: int
@@ -425,7 +426,7 @@ def _minibatch(
     return {k: v[index] for k, v in data.items()}
 
 
-def evaluate(network: ValueNetwork, validation: TrainingArrays) -> tuple[float, float]:
+def evaluate(network: ValueModel, validation: TrainingArrays) -> tuple[float, float]:
     """``(mse_initial, mse_all_knots)`` of ``network`` on per-knot validation arrays (NaN if empty)."""
     if len(validation) == 0:
         return float("nan"), float("nan")
@@ -438,7 +439,7 @@ def evaluate(network: ValueNetwork, validation: TrainingArrays) -> tuple[float, 
 class _Trainer:
     """Holds a run's mutable state between rounds (network, optimizer, buffer, metrics)."""
 
-    def __init__(self, config: TrainConfig, network: ValueNetwork, validation: TrainingArrays | None) -> None:
+    def __init__(self, config: TrainConfig, network: ValueModel, validation: TrainingArrays | None) -> None:
         self.config = config
         self.network = network
         self.optimizer = torch.optim.Adam(network.parameters(), lr=config.lr)
@@ -484,12 +485,12 @@ class _Trainer:
                     on_eval()
 
 
-def _members(network: ValueNetwork | ValueEnsemble) -> list[ValueNetwork]:
+def _members(network: ValueModel) -> list[ValueNetwork]:
     """The networks an optimizer step trains (one, or every member of an ensemble)."""
-    return list(network.members) if isinstance(network, ValueEnsemble) else [network]  # type: ignore[arg-type]
+    return network.networks if isinstance(network, ValueEnsemble) else [network]
 
 
-def make_network(config: TrainConfig, task: Task) -> ValueNetwork | ValueEnsemble:
+def make_network(config: TrainConfig, task: Task) -> ValueModel:
     """The run's (untrained) value function: a network, or an ensemble when ``config.ensemble >= 2``."""
     if config.ensemble >= 2:
         return ValueEnsemble(
@@ -657,7 +658,7 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
             config.train_steps_per_round,
             _rng(config.seed, _STREAM_ROUND_BATCHES, round_index),
             count_steps=True,
-            on_eval=lambda s=solves, f=failures, b=buffer_solves: trainer.record_metric(s, f, b),
+            on_eval=functools.partial(trainer.record_metric, solves, failures, buffer_solves),
         )
         if (
             not trainer.metrics
@@ -679,7 +680,7 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
 
 # ------------------------------------------------------------------------------------------------- checkpoints
 def _save_checkpoint(path: Path, trainer: _Trainer, rounds_done: int, sampler: Sampler, next_index: int) -> None:
-    pool_position = sampler.pool.position  # type: ignore[attr-defined]
+    pool_position = sampler.pool.position
     payload: dict[str, Any] = {
         "format": CHECKPOINT_FORMAT,
         "rounds_done": rounds_done,

@@ -20,10 +20,10 @@ from __future__ import annotations
 import io
 import itertools
 import os
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any
+from typing import Any, TypeAlias, cast
 
 import casadi as ca
 import numpy as np
@@ -53,8 +53,40 @@ class ValueNetworkConfig:
     """Widths of the tanh hidden layers (paper: one layer of 32)."""
 
 
+_Forward: TypeAlias = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+
+
+def _value_and_grad(forward: _Forward, x: Any, tau: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(V, dV/dx, dV/dtau)`` of ``forward`` for a batch (or a single ``x`` of shape ``(nx,)``), as NumPy."""
+    x_arr = np.asarray(x, dtype=np.float64)
+    single = x_arr.ndim == 1
+    x_arr = np.atleast_2d(x_arr)
+    tau_arr = np.broadcast_to(np.asarray(tau, dtype=np.float64).reshape(-1), (x_arr.shape[0],))
+    xt = torch.tensor(x_arr, dtype=DTYPE, requires_grad=True)
+    tt = torch.tensor(np.array(tau_arr), dtype=DTYPE, requires_grad=True)
+    with torch.enable_grad():
+        v = forward(xt, tt)
+        gx, gt = torch.autograd.grad(v.sum(), [xt, tt])
+    out = (v.detach().numpy(), gx.numpy(), gt.numpy())
+    return (out[0][0], out[1][0], out[2][0]) if single else out
+
+
+def _predict(forward: _Forward, x: Any, tau: Any) -> np.ndarray:
+    """NumPy values of ``forward`` for a batch."""
+    x_arr = np.atleast_2d(np.asarray(x, dtype=np.float64))
+    tau_arr = np.broadcast_to(np.asarray(tau, dtype=np.float64).reshape(-1), (x_arr.shape[0],))
+    with torch.no_grad():
+        return forward(torch.tensor(x_arr), torch.tensor(np.array(tau_arr))).numpy()
+
+
 class ValueNetwork(nn.Module):
     """``Vhat(x, tau)``: standardised inputs, tanh hidden layers, a linear output, de-standardised value."""
+
+    # Buffers registered in ``__init__`` (declared for the type checker: ``nn.Module.__getattr__`` is untyped).
+    in_mean: torch.Tensor
+    in_std: torch.Tensor
+    out_mean: torch.Tensor
+    out_std: torch.Tensor
 
     def __init__(self, nx: int, hidden: Sequence[int] = (32,), task_name: str = "", seed: int | None = None) -> None:
         """Build the network; ``seed`` makes the initial weights reproducible without touching global RNG state."""
@@ -96,9 +128,15 @@ class ValueNetwork(nn.Module):
     def forward_standardized(self, x: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
         """The standardised output ``y = (Vhat - out_mean) / out_std``, shape ``(batch,)`` (the training target)."""
         h = (self._inputs(x, tau) - self.in_mean) / self.in_std
-        for layer in self.layers[:-1]:
+        layers = self.linear_layers
+        for layer in layers[:-1]:
             h = torch.tanh(layer(h))
-        return self.layers[-1](h)[:, 0]
+        return layers[-1](h)[:, 0]
+
+    @property
+    def linear_layers(self) -> list[nn.Linear]:
+        """The affine layers in order (``self.layers`` typed: ``nn.ModuleList`` yields plain modules)."""
+        return cast("list[nn.Linear]", list(self.layers))
 
     def forward(self, x: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
         """``Vhat`` for a batch: ``x`` of shape ``(batch, nx)``, ``tau`` of shape ``(batch,)``; returns ``(batch,)``."""
@@ -106,24 +144,11 @@ class ValueNetwork(nn.Module):
 
     def value_and_grad(self, x: Any, tau: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """NumPy helper: ``(Vhat, dVhat/dx, dVhat/dtau)`` for a batch (or a single ``x`` of shape ``(nx,)``)."""
-        x_arr = np.asarray(x, dtype=np.float64)
-        single = x_arr.ndim == 1
-        x_arr = np.atleast_2d(x_arr)
-        tau_arr = np.broadcast_to(np.asarray(tau, dtype=np.float64).reshape(-1), (x_arr.shape[0],))
-        xt = torch.tensor(x_arr, dtype=DTYPE, requires_grad=True)
-        tt = torch.tensor(np.array(tau_arr), dtype=DTYPE, requires_grad=True)
-        with torch.enable_grad():
-            v = self.forward(xt, tt)
-            gx, gt = torch.autograd.grad(v.sum(), [xt, tt])
-        out = (v.detach().numpy(), gx.numpy(), gt.numpy())
-        return (out[0][0], out[1][0], out[2][0]) if single else out  # type: ignore[return-value]
+        return _value_and_grad(self.forward, x, tau)
 
     def predict(self, x: Any, tau: Any) -> np.ndarray:
         """NumPy values ``Vhat(x, tau)`` for a batch."""
-        x_arr = np.atleast_2d(np.asarray(x, dtype=np.float64))
-        tau_arr = np.broadcast_to(np.asarray(tau, dtype=np.float64).reshape(-1), (x_arr.shape[0],))
-        with torch.no_grad():
-            return self.forward(torch.tensor(x_arr), torch.tensor(np.array(tau_arr))).numpy()
+        return _predict(self.forward, x, tau)
 
     @torch.no_grad()
     def set_normalization(self, x: np.ndarray, tau: np.ndarray, value: np.ndarray) -> None:
@@ -145,7 +170,7 @@ class ValueNetwork(nn.Module):
     def casadi_parameters(self) -> np.ndarray:
         """``theta``: normalisation then each layer's weight (row-major) and bias, as one float64 vector."""
         parts = [self.in_mean, self.in_std]
-        for layer in self.layers:
+        for layer in self.linear_layers:
             parts += [layer.weight.reshape(-1), layer.bias]
         parts += [self.out_mean, self.out_std]
         return torch.cat([p.detach().reshape(-1) for p in parts]).numpy().astype(np.float64)
@@ -243,7 +268,12 @@ class ValueEnsemble(nn.Module):
         )
         self.pessimism = float(pessimism)
         self.task_name = str(task_name)
-        self.config = self.members[0].config
+        self.config: ValueNetworkConfig = self.networks[0].config
+
+    @property
+    def networks(self) -> list[ValueNetwork]:
+        """The members in order (``self.members`` typed: ``nn.ModuleList`` yields plain modules)."""
+        return cast("list[ValueNetwork]", list(self.members))
 
     @property
     def nx(self) -> int:
@@ -253,16 +283,16 @@ class ValueEnsemble(nn.Module):
     @property
     def in_mean(self) -> torch.Tensor:
         """Input standardisation (shared by the members)."""
-        return self.members[0].in_mean
+        return self.networks[0].in_mean
 
     @property
     def in_std(self) -> torch.Tensor:
         """Input standardisation scale (shared by the members)."""
-        return self.members[0].in_std
+        return self.networks[0].in_std
 
     def set_normalization(self, x: np.ndarray, tau: np.ndarray, value: np.ndarray) -> None:
         """The same standardisation for every member."""
-        for m in self.members:
+        for m in self.networks:
             m.set_normalization(x, tau, value)
 
     def forward(self, x: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
@@ -277,13 +307,18 @@ class ValueEnsemble(nn.Module):
             values = torch.stack([m(x_t, t_t.clone()) for m in self.members])
             return values.std(dim=0, unbiased=False).numpy()
 
-    value_and_grad = ValueNetwork.value_and_grad
-    predict = ValueNetwork.predict
+    def value_and_grad(self, x: Any, tau: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """NumPy helper: ``(mean, dmean/dx, dmean/dtau)``, as :meth:`ValueNetwork.value_and_grad`."""
+        return _value_and_grad(self.forward, x, tau)
+
+    def predict(self, x: Any, tau: Any) -> np.ndarray:
+        """NumPy values of the ensemble mean for a batch."""
+        return _predict(self.forward, x, tau)
 
     # ----------------------------------------------------------------- casadi
     def casadi_parameters(self) -> np.ndarray:
         """``theta``: every member's parameters in order, then ``pessimism``."""
-        return np.concatenate([*(m.casadi_parameters() for m in self.members), [self.pessimism]])
+        return np.concatenate([*(m.casadi_parameters() for m in self.networks), [self.pessimism]])
 
     def casadi_function(self) -> ca.Function:
         """CasADi ``(x, tau, theta) -> mean + pessimism * spread``; depends only on the architecture and ``K``."""
@@ -336,6 +371,10 @@ class ValueEnsemble(nn.Module):
 
     def extra_repr(self) -> str:
         return f"task={self.task_name!r}, members={len(self.members)}, pessimism={self.pessimism}"
+
+
+ValueModel: TypeAlias = ValueNetwork | ValueEnsemble
+"""What training, the samplers and the MPC accept as a learned value function: a network or an ensemble."""
 
 
 def _write_file(

@@ -23,7 +23,7 @@ Conventions shared by all of them:
 from __future__ import annotations
 
 import math
-from typing import Any, ClassVar, SupportsFloat
+from typing import Any, SupportsFloat
 
 import casadi as ca
 import gymnasium as gym
@@ -53,10 +53,11 @@ class BufferedFunction:
         self.args = [np.zeros(function.nnz_in(i)) for i in range(function.n_in())]
         self.res = [np.zeros(function.nnz_out(i)) for i in range(function.n_out())]
         self._buffer, self._eval = function.buffer()
+        # casadi.pyi lists a separate byte size; the binding takes it from the buffer (``set_arg(i, memoryview)``).
         for i, a in enumerate(self.args):
-            self._buffer.set_arg(i, memoryview(a))
+            self._buffer.set_arg(i, a.data)  # type: ignore[call-arg]
         for i, r in enumerate(self.res):
-            self._buffer.set_res(i, memoryview(r))
+            self._buffer.set_res(i, r.data)  # type: ignore[call-arg]
 
     def __call__(self) -> None:
         """Evaluate on ``self.args`` into ``self.res`` (fill the inputs in place first)."""
@@ -97,7 +98,8 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
     :meth:`_restore_runtime` to rebuild unpicklable simulator handles after unpickling.
     """
 
-    metadata: ClassVar[dict[str, Any]] = {"render_modes": ["human", "rgb_array"], "render_fps": 10}
+    # Not a ClassVar: gymnasium.Env declares ``metadata`` as an attribute an instance may replace (TaskEnv does).
+    metadata: dict[str, Any] = {"render_modes": ["human", "rgb_array"], "render_fps": 10}  # noqa: RUF012
 
     def __init__(
         self,

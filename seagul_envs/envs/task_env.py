@@ -155,5 +155,7 @@ def make_env(task: Task | str, **kwargs: Any) -> gym.Env:
     registered_id = TASK_ENV_IDS.get(task.name)
     if registered_id is not None and task is shared_task(task.name):
         return gym.make(registered_id, **kwargs)
-    spec = EnvSpec(id=task_env_id(task.name), entry_point=TaskEnv, disable_env_checker=False)
+    # gym.make calls entry_point(**kwargs) with ``task`` among them; Gymnasium's EnvCreator protocol (``**kwargs`` only)
+    # rejects a constructor with a named ``task`` parameter.
+    spec = EnvSpec(id=task_env_id(task.name), entry_point=TaskEnv, disable_env_checker=False)  # type: ignore[arg-type]
     return gym.make(spec, task=task, **kwargs)

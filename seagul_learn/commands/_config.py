@@ -152,8 +152,10 @@ def comma_list(item: Callable[[str], Any], what: str, container: type = tuple, l
 
 def json_value(kind: type) -> Callable[[str], Any]:
     """Parser of a JSON text whose value is a ``kind`` (``dict``: an object, ``list``: an array)."""
-    name = {dict: "object", list: "array"}.get(kind, kind.__name__)
-    example = {dict: '{"max_iter": 500}', list: "[1, 2]"}.get(kind, "...")
+    names: dict[type, str] = {dict: "object", list: "array"}
+    examples: dict[type, str] = {dict: '{"max_iter": 500}', list: "[1, 2]"}
+    name = names.get(kind, kind.__name__)
+    example = examples.get(kind, "...")
 
     def parse(value: str) -> Any:
         try:
