@@ -1,0 +1,88 @@
+"""Refit a value network from scratch on every solve of a finished training run (``seagul train --out RUN``).
+
+Why: the sampler-driven training fixes its output standardisation from the 10 pretraining solves, so closed-loop
+tail labels (values up to the cap, with large dual gradients) arrive many standard deviations out and wreck the fit
+(docs/closed_loop.md, finding 7). This script fits a fresh network to the whole dataset with the standardisation
+taken from all (capped) labels and the gradient labels whose standardised norm exceeds ``--grad-max`` dropped.
+
+    python scripts/refit_value.py RUN --cap 50 --grad-max 10 --hidden 64,64 --steps 20000 --out refit.pt
+
+Prints the number of knots, the dropped gradient labels and the loss every 5,000 steps; the last line is a JSON
+object with the output path and those counts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from seagul_learn import ValueNetwork
+from seagul_learn.dataset import Dataset, training_arrays
+from seagul_learn.training import _as_tensors, training_loss
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("run", type=Path, help="directory of a finished `seagul train` run")
+    parser.add_argument("--out", type=Path, required=True, help="where to write the refitted network (.pt)")
+    parser.add_argument("--cap", type=float, default=50.0, help="labels above this are clipped (gradients dropped)")
+    parser.add_argument("--grad-max", type=float, default=10.0, help="drop gradient labels above this std. norm")
+    parser.add_argument("--hidden", default="64,64", help="hidden widths, comma-separated")
+    parser.add_argument("--steps", type=int, default=20000, help="Adam steps (cosine learning-rate decay)")
+    parser.add_argument("--batch-size", type=int, default=256)
+    parser.add_argument("--lr", type=float, default=1e-3)
+    parser.add_argument("--sobolev", type=float, default=1.0, help="weight of the gradient term")
+    parser.add_argument("--max-solves", type=int, default=0, help="use only records with index below this (0: all)")
+    parser.add_argument("--seed", type=int, default=0)
+    args = parser.parse_args()
+    if args.cap <= 0 or args.grad_max <= 0 or args.steps < 1:
+        parser.error("--cap and --grad-max must be > 0 and --steps >= 1")
+
+    config = json.loads((args.run / "config.json").read_text())
+    meta = json.loads((args.run / "dataset" / "dataset.json").read_text())["meta"]
+    dataset = Dataset.open(args.run / "dataset", config["task"], meta=meta)
+    records = [r for r in dataset.records() if not args.max_solves or r.index < args.max_solves]
+    arrays = training_arrays(records)
+    nx = arrays.x.shape[1]
+    hidden = tuple(int(w) for w in args.hidden.split(","))
+
+    network = ValueNetwork(nx, hidden, task_name=config["task"], seed=args.seed)
+    network.set_normalization(arrays.x, arrays.tau, np.minimum(arrays.value, args.cap))
+    data = _as_tensors(arrays, args.cap)
+    scale = network.in_std.numpy()[:nx] / float(network.out_std)
+    big = np.linalg.norm(np.nan_to_num(arrays.grad_x) * scale, axis=1) > args.grad_max
+    data["grad_ok"] &= torch.tensor(~big)
+    print(f"{len(records)} solves, {len(arrays)} knots, {int(big.sum())} gradient labels dropped", flush=True)
+
+    torch.manual_seed(args.seed)
+    generator = torch.Generator().manual_seed(args.seed)
+    optimizer = torch.optim.Adam(network.parameters(), lr=args.lr)
+    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, args.steps)
+    start = time.perf_counter()
+    for step in range(args.steps):
+        idx = torch.randint(0, len(arrays), (args.batch_size,), generator=generator)
+        loss = training_loss(network, {k: v[idx] for k, v in data.items()}, args.sobolev)
+        optimizer.zero_grad(set_to_none=True)
+        loss.backward()
+        optimizer.step()
+        schedule.step()
+        if step % 5000 == 0:
+            print(f"step {step}: loss {float(loss.detach()):.4g}", flush=True)
+    network.save(args.out)
+    result = {
+        "network": str(args.out),
+        "solves": len(records),
+        "knots": len(arrays),
+        "gradient_labels_dropped": int(big.sum()),
+        "train_s": round(time.perf_counter() - start, 1),
+    }
+    print(json.dumps(result))
+
+
+if __name__ == "__main__":
+    main()
