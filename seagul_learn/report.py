@@ -31,6 +31,8 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from seagul_control._io import atomic_write_text
+
 if TYPE_CHECKING:
     from seagul_control.evaluation import EpisodeResult
 
@@ -294,10 +296,6 @@ def write_report(out_dir: Path, title: str, sections: Sequence[Section]) -> Path
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)
     md_path = out_dir / "report.md"
-    for path, text in ((md_path, render_markdown(title, sections)), (out_dir / "report.html", None)):
-        if text is None:
-            text = render_html(title, sections, out_dir)
-        tmp = path.with_suffix(path.suffix + ".tmp")
-        tmp.write_text(text, encoding="utf-8")
-        os.replace(tmp, path)
+    atomic_write_text(md_path, render_markdown(title, sections))
+    atomic_write_text(out_dir / "report.html", render_html(title, sections, out_dir))
     return md_path
