@@ -29,6 +29,12 @@ i.e. the Sobolev term compares ``dy/dz`` (the gradient the network actually fits
 ``w`` weighs one standardised gradient coordinate like the standardised value; knots whose gradient label is not
 finite only enter the value term. ``w = 0`` is plain MSE.
 
+**Labels far from the pretraining set** (closed-loop tails). ``value_cap`` clips labels (their gradient labels are
+dropped), ``grad_label_max`` drops gradient labels whose standardised norm is extreme, and ``renormalize`` moves the
+standardisation to the whole buffer after each round's solves without changing the network's function
+(:meth:`ValueNetwork.renormalize`, PopArt). ``refit_steps`` finally fits a fresh network to the whole buffer
+(docs/closed_loop.md measures all four).
+
 **Metrics** (``metrics.json`` / ``metrics.csv``): after pretraining, after every round (and every ``eval_every``
 training steps if set): ``solves`` (budget solves so far), ``train_steps`` (after pretraining), ``mse_initial`` (the
 validation starts at their full ``tau``), ``mse_all_knots`` (every per-knot label of the successful validation
@@ -86,6 +92,7 @@ _STREAM_ADVERSARIAL_ORDER = 2
 _STREAM_PRETRAIN_STARTS = 3
 _STREAM_PRETRAIN_BATCHES = 4
 _STREAM_ROUND_BATCHES = 5
+_STREAM_REFIT_BATCHES = 6
 _VALIDATION_SEED = 20210718  # one validation set for all training seeds
 
 
@@ -164,6 +171,18 @@ class TrainConfig:
     value_cap: float = 0.0
     """Labels above this value are clipped to it and their gradient labels dropped (0 = off): a tail problem from
     a far-off query can cost 1e4 and would otherwise swamp the loss; the clipped label still says "expensive"."""
+    renormalize: bool = False
+    """Re-fit the standardisation to the whole buffer (labels capped at ``value_cap``) after each round's solves,
+    rescaling the first and last layers so the network's function is unchanged (PopArt). Without it the statistics
+    of the ``pretrain_solves`` stay, and closed-loop tail labels land tens of standard deviations out."""
+    grad_label_max: float = 0.0
+    """Drop gradient labels whose standardised norm ``|dV/dx * in_std / out_std|`` exceeds this (0 = keep all):
+    near-singular tails carry dual gradients orders of magnitude above the rest that would dominate the Sobolev
+    term; their value labels stay."""
+    refit_steps: int = 0
+    """After the last round, fit a fresh network (the seed's initial weights) to the whole buffer for this many Adam
+    steps (uniform minibatches, cosine learning-rate decay, the buffer's standardisation); it becomes
+    ``network.pt`` and the loop's network is kept as ``network_loop.pt`` (0 = off)."""
     snapshots: tuple[int, ...] = ()
     """Budgets (solves) after whose round ``network_<solves>.pt`` is saved (success-per-solve curves from one run)."""
     uniform_tau: bool = False
@@ -202,7 +221,7 @@ class TrainConfig:
         for name in ("budget", "solves_per_round", "batch_size", "pretrain_solves", "workers", "torch_threads"):
             if int(getattr(self, name)) < 1:
                 raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("train_steps_per_round", "pretrain_steps", "eval_every"):
+        for name in ("train_steps_per_round", "pretrain_steps", "eval_every", "refit_steps"):
             if int(getattr(self, name)) < 0:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if not 0.0 <= self.newest_fraction <= 1.0:
@@ -223,6 +242,8 @@ class TrainConfig:
         self.closed_loop_options()  # validates the cl_* fields
         if not (self.value_cap >= 0 and math.isfinite(self.value_cap)):
             raise ValueError(f"value_cap must be a number >= 0 (0 = off), got {self.value_cap}")
+        if not (self.grad_label_max >= 0 and math.isfinite(self.grad_label_max)):
+            raise ValueError(f"grad_label_max must be a number >= 0 (0 = off), got {self.grad_label_max}")
         if any(b < 1 for b in self.snapshots):
             raise ValueError(f"snapshots must be budgets >= 1, got {list(self.snapshots)}")
         unreachable = [b for b in self.snapshots if b != self.budget and (b % self.solves_per_round or b > self.budget)]
@@ -384,13 +405,20 @@ def _rng(seed: int, stream: int, index: int = 0) -> np.random.Generator:
     return np.random.default_rng([int(seed), int(stream), int(index)])
 
 
-def _as_tensors(arrays: TrainingArrays, value_cap: float = 0.0) -> dict[str, torch.Tensor]:
+def _as_tensors(
+    arrays: TrainingArrays, value_cap: float = 0.0, grad_label_max: float = 0.0, network: ValueModel | None = None
+) -> dict[str, torch.Tensor]:
     value = arrays.value
     grad_ok = np.all(np.isfinite(arrays.grad_x), axis=1)
     if value_cap > 0:
         # A clipped label keeps "expensive" without its scale; its gradient label no longer applies.
         grad_ok &= value <= value_cap
         value = np.minimum(value, value_cap)
+    if grad_label_max > 0:
+        if network is None:
+            raise ValueError("grad_label_max needs the network whose standardisation measures the gradient labels")
+        scale = _members(network)[0].in_std.numpy()[: arrays.x.shape[1]] / float(_members(network)[0].out_std)
+        grad_ok &= np.linalg.norm(np.nan_to_num(arrays.grad_x) * scale, axis=1) <= grad_label_max
     return {
         "x": torch.tensor(arrays.x, dtype=torch.float64),
         "tau": torch.tensor(arrays.tau, dtype=torch.float64),
@@ -462,12 +490,17 @@ class _Trainer:
         rng: np.random.Generator,
         count_steps: bool,
         on_eval: Callable[[], None] | None = None,
+        cosine: bool = False,
     ) -> None:
+        """``steps`` Adam steps on minibatches of ``buffer`` (``newest`` indexes this round's knots); ``cosine``
+        decays the learning rate to 0 over the steps."""
         if len(buffer) == 0 or steps == 0:
             return
-        data = _as_tensors(buffer, self.config.value_cap)
+        data = _as_tensors(buffer, self.config.value_cap, self.config.grad_label_max, self.network)
         fraction = self.config.newest_fraction
         members = _members(self.network)
+        if cosine:
+            schedule = torch.optim.lr_scheduler.CosineAnnealingLR(self.optimizer, steps)
         for _ in range(steps):
             self.optimizer.zero_grad(set_to_none=True)
             # Each member of an ensemble gets its own minibatch (drawn in order from the one stream).
@@ -479,6 +512,8 @@ class _Trainer:
             )
             loss.backward()  # type: ignore[union-attr]
             self.optimizer.step()
+            if cosine:
+                schedule.step()
             if count_steps:
                 self.train_steps += 1
                 if on_eval is not None and self.config.eval_every and self.train_steps % self.config.eval_every == 0:
@@ -652,6 +687,8 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
         buffer = _concat(buffer, new)
         solves, failures = len(budget_records), count_failures(budget_records)
         buffer_solves = config.pretrain_solves + solves
+        if config.renormalize:
+            network.renormalize(buffer.x, buffer.tau, _capped(buffer.value, config.value_cap))
         trainer.train(
             buffer,
             newest,
@@ -673,9 +710,42 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
         bar.update(1)
     bar.close()
 
+    if config.refit_steps:
+        network.save(out / "network_loop.pt")
+        network = refit(config, task, buffer, trainer)
+        trainer.record_metric(
+            len(budget_records), count_failures(budget_records), config.pretrain_solves + len(budget_records)
+        )
     network.save(out / "network.pt")
     _write_metrics(out, trainer.metrics, config, getattr(sampler, "log", None))
     return TrainResult(network, trainer.metrics, out, len(budget_records), count_failures(budget_records), dataset)
+
+
+def _capped(value: np.ndarray, value_cap: float) -> np.ndarray:
+    return np.minimum(value, value_cap) if value_cap > 0 else value
+
+
+def refit(config: TrainConfig, task: Task, buffer: TrainingArrays, trainer: _Trainer) -> ValueModel:
+    """Fit a fresh network to the whole buffer (``TrainConfig.refit_steps``); it replaces ``trainer.network``.
+
+    The fresh network starts from the seed's initial weights with the buffer's standardisation (capped labels), so
+    every label is in range from the first step; minibatches are uniform over the buffer (stream
+    ``_STREAM_REFIT_BATCHES``) and the learning rate decays along a cosine to 0. Deterministic, so a run
+    interrupted during the refit and resumed ends with the same network.
+    """
+    network = make_network(config, task)
+    network.set_normalization(buffer.x, buffer.tau, _capped(buffer.value, config.value_cap))
+    trainer.network = network
+    trainer.optimizer = torch.optim.Adam(network.parameters(), lr=config.lr)
+    trainer.train(
+        buffer,
+        np.zeros(0, dtype=np.int64),
+        config.refit_steps,
+        _rng(config.seed, _STREAM_REFIT_BATCHES),
+        count_steps=True,
+        cosine=True,
+    )
+    return network
 
 
 # ------------------------------------------------------------------------------------------------- checkpoints

@@ -166,6 +166,27 @@ class ValueNetwork(nn.Module):
         self.out_mean.fill_(float(value.mean()))
         self.out_std.fill_(float(out_std) if out_std > _MIN_STD else 1.0)
 
+    @torch.no_grad()
+    def renormalize(self, x: np.ndarray, tau: np.ndarray, value: np.ndarray) -> None:
+        """Move the standardisation to new data **without changing the function** ``Vhat`` (PopArt's "preserving
+        outputs precisely", van Hasselt et al. 2016, applied to both ends).
+
+        With old statistics ``(m, s)`` and new ones ``(m', s')`` of the inputs, the first layer ``W z + b`` with
+        ``z = (u - m) / s`` becomes ``W' = W diag(s' / s)``, ``b' = b + W ((m' - m) / s)``; with ``(mu, sigma)`` and
+        ``(mu', sigma')`` of the value, the last layer becomes ``W' = W sigma / sigma'``,
+        ``b' = (b sigma + mu - mu') / sigma'``. Training then sees targets in the new units, so labels far outside
+        the range of the data the statistics first came from (closed-loop tails) no longer sit tens of standard
+        deviations out, and the network keeps everything it has learned.
+        """
+        old_in_mean, old_in_std = self.in_mean.clone(), self.in_std.clone()
+        old_out_mean, old_out_std = self.out_mean.clone(), self.out_std.clone()
+        self.set_normalization(x, tau, value)
+        first, last = self.linear_layers[0], self.linear_layers[-1]
+        first.bias.add_(first.weight @ ((self.in_mean - old_in_mean) / old_in_std))
+        first.weight.mul_((self.in_std / old_in_std)[None, :])
+        last.weight.mul_(old_out_std / self.out_std)
+        last.bias.copy_((last.bias * old_out_std + old_out_mean - self.out_mean) / self.out_std)
+
     # ----------------------------------------------------------------- casadi
     def casadi_parameters(self) -> np.ndarray:
         """``theta``: normalisation then each layer's weight (row-major) and bias, as one float64 vector."""
@@ -294,6 +315,11 @@ class ValueEnsemble(nn.Module):
         """The same standardisation for every member."""
         for m in self.networks:
             m.set_normalization(x, tau, value)
+
+    def renormalize(self, x: np.ndarray, tau: np.ndarray, value: np.ndarray) -> None:
+        """:meth:`ValueNetwork.renormalize` for every member (the function of each is unchanged)."""
+        for m in self.networks:
+            m.renormalize(x, tau, value)
 
     def forward(self, x: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
         """The ensemble mean."""

@@ -265,3 +265,81 @@ def test_sigkill_at_any_moment_then_resume_matches(tmp_path, kill_at):
     resumed = _run(tmp_path, "killed", resume=True, sampler="adversarial")
     _assert_same_datasets(reference.dataset, resumed.dataset)
     np.testing.assert_array_equal(_weights(reference.network), _weights(resumed.network))
+
+
+# ------------------------------------------------------------------------ labels far from the pretraining set
+def test_renormalize_keeps_the_function_and_moves_the_statistics():
+    rng = np.random.default_rng(3)
+    x, tau, value = rng.normal(size=(64, 4)), rng.uniform(1, 3, 64), rng.normal(size=64)
+    net = ValueNetwork(4, (8, 8), seed=0)
+    net.set_normalization(x, tau, value)
+    with torch.no_grad():  # make the layers non-trivial
+        for p in net.parameters():
+            p.add_(0.3 * torch.randn_like(p))
+    before = net.predict(x, tau)
+    _, grad_before, _ = net.value_and_grad(x, tau)
+    net.renormalize(5 * x + 2, 3 * tau, 40 * value + 7)
+    np.testing.assert_allclose(net.predict(x, tau), before, rtol=1e-12, atol=1e-12)
+    np.testing.assert_allclose(net.value_and_grad(x, tau)[1], grad_before, rtol=1e-10, atol=1e-12)
+    assert net.out_std.item() == pytest.approx(np.std(40 * value + 7))
+    np.testing.assert_allclose(net.in_mean.numpy()[:4], (5 * x + 2).mean(axis=0))
+
+
+def test_renormalize_follows_the_buffer_in_training(tmp_path):
+    fixed = _run(tmp_path, "fixed", sampler="uniform")
+    moving = _run(tmp_path, "moving", sampler="uniform", renormalize=True)
+    from seagul_learn.dataset import training_arrays
+
+    buffer_values = training_arrays(moving.dataset.records()).value
+    assert moving.network.out_std.item() == pytest.approx(np.std(buffer_values), rel=1e-9)
+    pretrain = [r for r in fixed.dataset.records() if r.sampler == "pretrain"]
+    assert fixed.network.out_std.item() == pytest.approx(np.std(training_arrays(pretrain).value), rel=1e-9)
+    assert moving.metrics[0].mse_initial == fixed.metrics[0].mse_initial  # the pretraining is shared
+    assert moving.metrics[-1].mse_initial != fixed.metrics[-1].mse_initial
+
+
+def test_grad_label_max_drops_only_extreme_gradient_labels():
+    from seagul_learn.dataset import TrainingArrays
+    from seagul_learn.training import _as_tensors
+
+    net = ValueNetwork(2, (4,), seed=0)
+    arrays = TrainingArrays(
+        x=np.array([[0.0, 0.0], [1.0, 1.0], [2.0, 0.0]]),
+        tau=np.ones(3),
+        value=np.array([1.0, 2.0, 3.0]),
+        grad_x=np.array([[0.1, 0.0], [100.0, 0.0], [np.nan, 0.0]]),
+        solve_index=np.zeros(3, dtype=np.int64),
+        knot=np.zeros(3, dtype=np.int64),
+    )
+    net.set_normalization(arrays.x, arrays.tau, arrays.value)
+    kept = _as_tensors(arrays, 0.0, 10.0, net)["grad_ok"].tolist()
+    assert kept == [True, False, False]  # the big label dropped; a NaN label was never used
+    assert _as_tensors(arrays, 0.0, 0.0, net)["grad_ok"].tolist() == [True, True, False]
+    with pytest.raises(ValueError, match="grad_label_max needs the network"):
+        _as_tensors(arrays, 0.0, 10.0, None)
+
+
+def test_refit_replaces_the_network_and_resumes_to_the_same_weights(tmp_path):
+    task = make_task("acrobot")
+    reference = _run(tmp_path, "ref", sampler="uniform", refit_steps=30, value_cap=20.0, renormalize=True)
+    out = tmp_path / "ref"
+    assert (out / "network_loop.pt").is_file()
+    loop = ValueNetwork.load(out / "network_loop.pt")
+    assert not np.array_equal(_weights(loop), _weights(reference.network))
+    np.testing.assert_array_equal(_weights(ValueNetwork.load(out / "network.pt")), _weights(reference.network))
+    assert reference.metrics[-1].train_steps == reference.metrics[-2].train_steps + 30
+    # A run killed during the refit (every round checkpointed) resumes to the same network without a solve.
+    import seagul_learn.training as training_module
+
+    def interrupted(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    opts = dict(sampler="uniform", refit_steps=30, value_cap=20.0, renormalize=True)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(training_module, "refit", interrupted)
+        with pytest.raises(KeyboardInterrupt):
+            _run(tmp_path, "run", **opts)
+    toy = ToySolver(task, fail_above=np.pi + 0.25)
+    resumed = _run(tmp_path, "run", toy=toy, resume=True, **opts)
+    assert toy.num_solves == 0
+    np.testing.assert_array_equal(_weights(reference.network), _weights(resumed.network))
