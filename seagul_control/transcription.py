@@ -20,7 +20,8 @@ Speed: the NLP is built as an MX graph that *calls* the per-interval integrator 
 derivatives are per-stage functions too. By default (``codegen=False``) CasADi expands it to SX and interprets it,
 as before. With ``codegen=True`` the solver's functions (``nlp_f``, ``nlp_g``, their derivatives, ``nlp_hess_l``) are
 generated as C once, compiled with the system C compiler into ``$SEAGUL_CACHE_DIR`` (default
-``~/.cache/seagul/casadi``) under a hash of the generated source, and loaded from there: a new process with the same
+``~/.cache/seagul/casadi``) under the task's fingerprint and a hash of the generated source
+(``<task>_<solver>_n<n>_<task fingerprint>_<source hash>.so``), and loaded from there: a new process with the same
 problem only regenerates the source (~0.1 s) and loads the library. Without a compiler it falls back to the
 interpreted solver with a warning. Measured gains are in docs/trajopt.md. This module is the one home of compiled
 CasADi code: the MPC's JIT options (:func:`jit_solver_options`) use the same cache directory
@@ -151,16 +152,30 @@ def find_c_compiler() -> str | None:
     return None
 
 
-def compile_nlp_library(solver: ca.Function, name: str, cache_dir: str | os.PathLike[str] | None = None) -> Path:
+def compile_nlp_library(
+    solver: ca.Function,
+    name: str,
+    cache_dir: str | os.PathLike[str] | None = None,
+    fingerprint: str | None = None,
+) -> Path:
     """Generate C for the NLP functions of ``solver``, compile them once per distinct source, return the library.
 
     The cache key is a hash of the generated source, the compiler and its flags (and the CasADi version, which shapes
-    the generated code), so a changed model or option never loads a stale library. Writes are atomic (temporary
-    file then rename), so concurrent processes building the same problem are safe.
+    the generated code), so a changed model or option never loads a stale library; ``fingerprint`` (the task's
+    :meth:`~seagul_envs.tasks.base.Task.fingerprint`, given by :class:`Transcription`) is part of the file name too,
+    ``<name>_<fingerprint>_<hash>.so``, so the libraries of two tasks that differ in any parameter have different
+    names. Writes are atomic (temporary file then rename), so concurrent processes building the same problem are
+    safe.
+
+    A library of an earlier version, named ``<name>_<hash>.so`` (no fingerprint), was compiled from the very same
+    source when its hash matches: it is hard-linked under the new name instead of compiled again.
 
     Raises:
         RuntimeError: no C compiler, or the compilation failed.
+        ValueError: ``fingerprint`` is not a short run of letters and digits.
     """
+    if fingerprint is not None and not (fingerprint.isalnum() and fingerprint.isascii() and len(fingerprint) <= 32):
+        raise ValueError(f"fingerprint must be at most 32 ASCII letters and digits, got {fingerprint!r}")
     cc = find_c_compiler()
     if cc is None:
         raise RuntimeError("no C compiler found (set $CC or install gcc)")
@@ -179,10 +194,19 @@ def compile_nlp_library(solver: ca.Function, name: str, cache_dir: str | os.Path
         for part in (ca.__version__, cc, *CODEGEN_FLAGS):  # type: ignore[attr-defined]  # missing from casadi.pyi
             digest.update(part.encode() + b"\0")
         digest.update(src.read_bytes())
-        lib = cache / f"{name}_{digest.hexdigest()[:20]}.so"
+        source_hash = digest.hexdigest()[:20]
+        lib = cache / (f"{name}_{fingerprint}_{source_hash}.so" if fingerprint else f"{name}_{source_hash}.so")
         if lib.is_file():
             return lib
         out = Path(tmp) / f"{name}.so"
+        legacy = cache / f"{name}_{source_hash}.so"
+        if legacy != lib and legacy.is_file():
+            try:
+                os.link(legacy, out)
+                os.replace(out, lib)
+                return lib
+            except OSError:  # no hard links on this filesystem: compile
+                out.unlink(missing_ok=True)
         proc = subprocess.run([cc, *CODEGEN_FLAGS, str(src), "-o", str(out), "-lm"], capture_output=True, text=True)
         if proc.returncode != 0:
             raise RuntimeError(f"compiling {src.name} failed: {proc.stderr[-2000:]}")
@@ -449,7 +473,7 @@ class Transcription:
             try:
                 # Unexpanded: the generated C then holds one function per stage-level derivative, not n copies.
                 plain = ca.nlpsol(name, solver, nlp, {**options, "expand": False})
-                self.codegen_library = compile_nlp_library(plain, name, codegen_dir)
+                self.codegen_library = compile_nlp_library(plain, name, codegen_dir, task.fingerprint())
                 lib_options = {k: v for k, v in options.items() if k != "expand"}
                 compiled = ca.nlpsol(name, solver, str(self.codegen_library), lib_options)
             except (RuntimeError, OSError) as exc:

@@ -6,6 +6,12 @@ number of workers or the backend. Each worker builds one :class:`TrajectoryOptim
 time it needs it and keeps it (a build costs ~1 s; a solve ~10-500 ms), and runs single-threaded (BLAS/OpenMP
 threads pinned to 1) so that ``workers`` processes use ``workers`` cores.
 
+The task travels as an object: a registered name is resolved once in the calling process, and the :class:`Task`
+itself is pickled to the local workers (with every chunk, ~1 ms) and to the Ray actors (put in the object store once
+per call). Nothing is looked up by name on the far side, so a user-defined task or a variant of a built-in one with
+the same name is solved as given. A configuration is the task's :meth:`~seagul_envs.tasks.base.Task.fingerprint`
+plus the frozen options; a worker checks the fingerprint of the task it received before it builds an optimizer.
+
 Both pools live as long as this process: the local loky pool (idle timeout 300 s) and the Ray actors (created on
 the first Ray solve, grown when a later call asks for more workers, rebuilt after ``ray.shutdown()``/``ray.init()``,
 killed by :func:`shutdown_ray_pool` or at exit). Training rounds therefore pay the worker start-up and the solver
@@ -24,15 +30,20 @@ from typing import Any
 
 import numpy as np
 
+from seagul_envs.tasks import make_task, resolve_task
+from seagul_envs.tasks.base import Task
 from seagul_learn.results import SolveResult
 
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
 
-# Per-process cache: (task name, frozen solver options) -> TrajectoryOptimizer.
-_OPTIMIZERS: dict[tuple[str, tuple[tuple[str, Any], ...]], Any] = {}
+Frozen = tuple[tuple[str, Any], ...]
+"""Solver options as a hashable, sorted tuple of ``(name, value)`` pairs (see :func:`_freeze`)."""
+
+# Per-process cache: (task fingerprint, frozen solver options) -> TrajectoryOptimizer.
+_OPTIMIZERS: dict[tuple[str, Frozen], Any] = {}
 
 
-def _freeze(options: dict[str, Any] | None) -> tuple[tuple[str, Any], ...]:
+def _freeze(options: dict[str, Any] | None) -> Frozen:
     def norm(v: Any) -> Any:
         if isinstance(v, dict):
             return tuple(sorted((k, norm(x)) for k, x in v.items()))
@@ -43,22 +54,39 @@ def _freeze(options: dict[str, Any] | None) -> tuple[tuple[str, Any], ...]:
     return tuple(sorted((k, norm(v)) for k, v in (options or {}).items()))
 
 
-def _optimizer(task_name: str, frozen: tuple[tuple[str, Any], ...]) -> Any:
-    key = (task_name, frozen)
-    if key not in _OPTIMIZERS:
+def _optimizer(task: Task, frozen: Frozen, fingerprint: str | None = None) -> Any:
+    """This process's optimizer for ``(task, options)``, built on first use and kept.
+
+    ``fingerprint`` is the task's fingerprint as the caller computed it (None: compute it here). A worker is given it
+    with the task, so a cached optimizer is found without hashing the task again; before a build the fingerprint of
+    the task that actually arrived is checked against it.
+    """
+    key = (task.fingerprint() if fingerprint is None else fingerprint, frozen)
+    opt = _OPTIMIZERS.get(key)
+    if opt is None:
+        if fingerprint is not None and task.fingerprint() != fingerprint:
+            raise RuntimeError(
+                f"task {task.name!r} changed on its way to this worker (fingerprint {task.fingerprint()} here, "
+                f"{fingerprint} in the caller): some field of it does not survive pickling"
+            )
         from seagul_learn.trajopt import TrajectoryOptimizer
 
         options: dict[str, Any] = {
             k: (dict(v) if k == "solver_options" and isinstance(v, tuple) else v) for k, v in frozen
         }
-        _OPTIMIZERS[key] = TrajectoryOptimizer(task_name, **options).prepare()
-    return _OPTIMIZERS[key]
+        opt = TrajectoryOptimizer(task, **options).prepare()
+        _OPTIMIZERS[key] = opt
+    return opt
 
 
 def _solve_chunk(
-    task_name: str, frozen: tuple[tuple[str, Any], ...], starts: np.ndarray, taus: np.ndarray
+    task: Task | str, frozen: Frozen, starts: np.ndarray, taus: np.ndarray, fingerprint: str | None = None
 ) -> list[SolveResult]:
-    opt = _optimizer(task_name, frozen)
+    """Solve one chunk in a worker. ``solve_many`` sends the Task object and its fingerprint; a registered name
+    (resolved here, with ``make_task``) is still accepted from direct callers such as the benchmarks."""
+    if isinstance(task, str):
+        task = make_task(task)
+    opt = _optimizer(task, frozen, fingerprint)
     return [opt.solve(x, float(t)) for x, t in zip(starts, taus, strict=True)]
 
 
@@ -75,11 +103,9 @@ def _chunks(n: int, workers: int, chunk_size: int | None) -> list[np.ndarray]:
 
 
 def _check_inputs(
-    task_name: str, starts: np.ndarray, taus: np.ndarray | None, tail: bool = False
+    task: Task, starts: np.ndarray, taus: np.ndarray | None, tail: bool = False
 ) -> tuple[np.ndarray, np.ndarray]:
-    from seagul_envs.tasks import make_task
-
-    task = make_task(task_name)
+    task_name = task.name
     arr = np.asarray(starts, dtype=np.float64)
     if arr.ndim != 2 or arr.shape[1] != task.nx:
         raise ValueError(f"{task_name}: starts must have shape (n, {task.nx}), got {arr.shape}")
@@ -104,7 +130,7 @@ def _progress(total: int, enabled: bool, desc: str) -> Any:
 
 
 def solve_many(
-    task_name: str,
+    task: Task | str,
     starts: np.ndarray,
     taus: np.ndarray | None = None,
     *,
@@ -116,7 +142,10 @@ def solve_many(
     """Solve paper Eq. 1 from every row of ``starts`` and return the results in input order.
 
     Args:
-        task_name: registry name of the task (``"acrobot"``, ``"glider"``).
+        task: the :class:`~seagul_envs.tasks.base.Task` to solve, or a registered name (``"acrobot"``,
+            ``"glider"``, or one added with ``register_task``), resolved once here with ``make_task``. The object
+            itself reaches the workers (by pickling), so a custom task or a variant of a built-in one is solved as
+            given; workers cache one optimizer per task fingerprint and options.
         starts: ``(n, nx)`` start states.
         taus: ``(n,)`` times to go (default: the task's nominal for every start).
         workers: processes (``backend="local"``; ``1`` solves in this process) or actors (``backend="ray"``).
@@ -131,11 +160,15 @@ def solve_many(
         One :class:`SolveResult` per start; a failed solve has ``success=False`` (never raises for a hard start).
 
     Raises:
-        ValueError: bad shapes, NaN starts, a ``tau`` outside the task's range, unknown backend or options.
+        TypeError: ``task`` is neither a Task nor a str.
+        ValueError: an unknown task name or a malformed Task, bad shapes, NaN starts, a ``tau`` outside the task's
+            range, unknown backend or options.
     """
+    task = resolve_task(task)
+    fingerprint = task.fingerprint()
     options = dict(solver_options or {})
     tail = options.get("horizon") is not None
-    arr, tau_arr = _check_inputs(task_name, starts, taus, tail=tail)
+    arr, tau_arr = _check_inputs(task, starts, taus, tail=tail)
     ray_address = options.pop("ray_address", None)
     frozen = _freeze(options)
     n = arr.shape[0]
@@ -150,16 +183,16 @@ def solve_many(
     if n == 0:
         return []
     if backend == "ray":
-        return _solve_ray(task_name, frozen, arr, tau_arr, workers, progress, ray_address)
+        return _solve_ray(task, fingerprint, frozen, arr, tau_arr, workers, progress, ray_address)
     if workers == 1:
-        opt = _optimizer(task_name, frozen)
+        opt = _optimizer(task, frozen, fingerprint)
         out: list[SolveResult] = []
-        with _progress(n, progress, f"{task_name} solves") as bar:
+        with _progress(n, progress, f"{task.name} solves") as bar:
             for x, t in zip(arr, tau_arr, strict=True):
                 out.append(opt.solve(x, float(t)))
                 bar.update(1)
         return out
-    return _solve_local(task_name, frozen, arr, tau_arr, workers, progress)
+    return _solve_local(task, fingerprint, frozen, arr, tau_arr, workers, progress)
 
 
 _POOL: dict[str, Any] = {}
@@ -187,8 +220,9 @@ def _local_pool(workers: int) -> Any:
 
 
 def _solve_local(
-    task_name: str,
-    frozen: tuple[tuple[str, Any], ...],
+    task: Task,
+    fingerprint: str,
+    frozen: Frozen,
     starts: np.ndarray,
     taus: np.ndarray,
     workers: int,
@@ -198,7 +232,7 @@ def _solve_local(
     chunks = _chunks(n, workers, None)
     results: list[SolveResult | None] = [None] * n
     pool = _local_pool(workers)
-    with _progress(n, progress, f"{task_name} solves x{workers}") as bar:
+    with _progress(n, progress, f"{task.name} solves x{workers}") as bar:
         pending: dict[Future[list[SolveResult]], np.ndarray] = {}
         queue = list(chunks)
         # Bounded submission keeps memory flat for very large batches.
@@ -207,7 +241,8 @@ def _solve_local(
         def submit_more() -> None:
             while queue and len(pending) < limit:
                 idx = queue.pop(0)
-                pending[pool.submit(_solve_chunk, task_name, frozen, starts[idx], taus[idx])] = idx
+                fut = pool.submit(_solve_chunk, task, frozen, starts[idx], taus[idx], fingerprint)
+                pending[fut] = idx
 
         submit_more()
         while pending:
@@ -301,8 +336,9 @@ atexit.register(shutdown_ray_pool)
 
 
 def _solve_ray(
-    task_name: str,
-    frozen: tuple[tuple[str, Any], ...],
+    task: Task,
+    fingerprint: str,
+    frozen: Frozen,
     starts: np.ndarray,
     taus: np.ndarray,
     workers: int,
@@ -323,16 +359,17 @@ def _solve_ray(
     results: list[SolveResult | None] = [None] * n
     queue = list(chunks)
     in_flight: dict[Any, tuple[int, np.ndarray]] = {}
+    task_ref = ray.put(task)  # serialised once per call; Ray hands the actors the Task itself
 
     def submit(actor_i: int) -> None:
         if queue:
             idx = queue.pop(0)
-            ref = actors[actor_i].solve_chunk.remote(task_name, frozen, starts[idx], taus[idx])
+            ref = actors[actor_i].solve_chunk.remote(task_ref, frozen, starts[idx], taus[idx], fingerprint)
             in_flight[ref] = (actor_i, idx)
 
     finished = False
     try:
-        with _progress(n, progress, f"{task_name} solves (ray x{len(actors)})") as bar:
+        with _progress(n, progress, f"{task.name} solves (ray x{len(actors)})") as bar:
             for i in range(len(actors)):
                 submit(i)
             while in_flight:
@@ -356,7 +393,8 @@ _RAY_ACTOR: Any = None
 
 
 def _ray_actor_class(ray: Any) -> Any:
-    """A pool actor: any task and options (each built solver cached in the actor's process while it lives).
+    """A pool actor: any task and options (each built solver cached in the actor's process while it lives, keyed by
+    the task's fingerprint and the options).
 
     A dead actor is restarted (its solvers are rebuilt on demand) and its in-flight chunk re-run (deterministic, so
     safe).
@@ -369,9 +407,14 @@ def _ray_actor_class(ray: Any) -> Any:
                 _worker_init()
 
             def solve_chunk(
-                self, task_name: str, frozen: tuple[tuple[str, Any], ...], starts: np.ndarray, taus: np.ndarray
+                self,
+                task: Task | str,
+                frozen: Frozen,
+                starts: np.ndarray,
+                taus: np.ndarray,
+                fingerprint: str | None = None,
             ) -> list[SolveResult]:
-                return _solve_chunk(task_name, frozen, starts, taus)
+                return _solve_chunk(task, frozen, starts, taus, fingerprint)
 
             def pid(self) -> int:
                 return os.getpid()

@@ -73,62 +73,113 @@ def tail_horizon(task: Task, tau: float) -> int | None:
     return int(k)
 
 
-def trajopt_batch_solver(
-    task_name: str,
-    *,
-    workers: int = 1,
-    backend: str = "local",
-    progress: bool = False,
-    solver_options: dict[str, Any] | None = None,
-) -> BatchSolver:
-    """The real solver: ``solve_many`` on the full-horizon trajectory optimizer (imported lazily).
+class TrajoptBatchSolver:
+    """The real batch solver of one task (built by :func:`trajopt_batch_solver`; a :data:`BatchSolver`).
 
-    Requests whose ``tau`` is below T0 are tail problems (:func:`tail_horizon`): they are grouped by their number of
-    intervals and solved with ``horizon=k`` and :data:`TAIL_SOLVER_DEFAULTS` (one optimizer per ``k`` and worker,
-    built on first use and kept).
+    Attributes:
+        task: the task it solves (resolved once, in the process that built the solver). :class:`CachedBatchSolver`
+            reads it to key its cache by the task's content.
     """
-    from seagul_envs import make_task
-    from seagul_learn.parallel import solve_many  # the optimizer stack is only needed when actually solving
 
-    task = make_task(task_name)
+    def __init__(
+        self,
+        task: Task,
+        *,
+        workers: int = 1,
+        backend: str = "local",
+        progress: bool = False,
+        solver_options: dict[str, Any] | None = None,
+    ) -> None:
+        self.task = task
+        self.workers = workers
+        self.backend = backend
+        self.progress = progress
+        self.solver_options = dict(solver_options or {})
 
-    def solve(starts: np.ndarray, taus: np.ndarray) -> list[SolveResult]:
+    def __call__(self, starts: np.ndarray, taus: np.ndarray) -> list[SolveResult]:
+        from seagul_learn.parallel import solve_many  # the optimizer stack is only needed when actually solving
+
         starts = np.atleast_2d(np.asarray(starts, dtype=np.float64))
         taus = np.asarray(taus, dtype=np.float64).reshape(-1)
-        horizons = [tail_horizon(task, float(t)) for t in taus]
+        horizons = [tail_horizon(self.task, float(t)) for t in taus]
         out: list[SolveResult | None] = [None] * starts.shape[0]
         for k in dict.fromkeys(horizons):
             idx = [i for i, h in enumerate(horizons) if h == k]
-            options = dict(solver_options or {})
+            options = dict(self.solver_options)
             if k is not None:
                 options = {**TAIL_SOLVER_DEFAULTS, **options, "horizon": k}
             results = solve_many(
-                task_name,
+                self.task,
                 starts[idx],
                 taus[idx],
-                workers=workers,
-                backend=backend,
-                progress=progress,
+                workers=self.workers,
+                backend=self.backend,
+                progress=self.progress,
                 solver_options=options,
             )
             for i, result in zip(idx, results, strict=True):
                 out[i] = result
         return [r for r in out if r is not None]
 
-    return solve
+    def __repr__(self) -> str:
+        return f"TrajoptBatchSolver({self.task!r}, workers={self.workers}, backend={self.backend!r})"
 
 
-def solver_key(solver_options: dict[str, Any] | None) -> str:
+def trajopt_batch_solver(
+    task: Task | str,
+    *,
+    workers: int = 1,
+    backend: str = "local",
+    progress: bool = False,
+    solver_options: dict[str, Any] | None = None,
+) -> TrajoptBatchSolver:
+    """The real solver: ``solve_many`` on the full-horizon trajectory optimizer (imported lazily).
+
+    ``task`` is a :class:`Task` or a registered name (resolved here, once, with ``make_task``); the Task object is
+    what every ``solve_many`` call (and so every worker) gets. Requests whose ``tau`` is below T0 are tail problems
+    (:func:`tail_horizon`): they are grouped by their number of intervals and solved with ``horizon=k`` and
+    :data:`TAIL_SOLVER_DEFAULTS` (one optimizer per ``k`` and worker, built on first use and kept).
+
+    Raises:
+        TypeError: ``task`` is neither a Task nor a str.
+        ValueError: an unknown task name or a malformed Task.
+    """
+    from seagul_envs.tasks import resolve_task
+
+    return TrajoptBatchSolver(
+        resolve_task(task), workers=workers, backend=backend, progress=progress, solver_options=solver_options
+    )
+
+
+def solver_key(solver_options: dict[str, Any] | None, task: Task | str | None = None) -> str:
     """A stable text key of the real solver: its settings and a fingerprint of its code (caches are keyed by it).
 
     The fingerprint makes a cache (validation sets, cached solves) or a resumed run refuse results of an older
-    optimizer after its code changed, instead of silently mixing the two.
+    optimizer after its code changed, instead of silently mixing the two. With ``task`` (a Task or a registered
+    name) it is :func:`solver_fingerprint` of that task, so two tasks that differ in any parameter never share a key;
+    without it the key is the code's alone (as before; the caller must then keep tasks apart itself, e.g. by name).
     """
-    return f"trajopt@{solver_fingerprint()}:" + json.dumps(solver_options or {}, sort_keys=True, default=str)
+    return f"trajopt@{solver_fingerprint(task)}:" + json.dumps(solver_options or {}, sort_keys=True, default=str)
+
+
+def solver_fingerprint(task: Task | str | None = None) -> str:
+    """Short hash of the code that defines a solve and, given ``task``, of the task's content.
+
+    Without ``task``: :func:`code_fingerprint` (the optimizer, tail defaults, transcription and built-in task
+    sources). With a Task or a registered name: a hash of that and :meth:`Task.fingerprint` (the task's functions,
+    parameters, bounds, sets and transcription settings).
+    """
+    code = code_fingerprint()
+    if task is None:
+        return code
+    from seagul_envs.tasks import resolve_task
+
+    digest = hashlib.sha256(f"{code}:{resolve_task(task).fingerprint()}".encode())
+    return digest.hexdigest()[:12]
 
 
 @functools.cache
-def solver_fingerprint() -> str:
+def code_fingerprint() -> str:
     """Short hash of the source of the modules that define a solve (optimizer, tail defaults, transcription, tasks).
 
     Computed once per process, from the files of the modules this process imported.
@@ -230,23 +281,49 @@ class SolveRunner:
 
 
 class CachedBatchSolver:
-    """Wraps a batch solver with an on-disk cache of results keyed by ``(solver_name, x, tau)`` (bit-exact).
+    """Wraps a batch solver with an on-disk cache of results keyed by ``(solver_name, task, x, tau)`` (bit-exact).
 
     For experiments that solve the same starts several times (the uniform baseline with and without Sobolev
     training, the shared pretraining set, adversarial chains starting at the baseline's starts). One ``.npz`` per
     result, written atomically, so concurrent processes sharing a cache are safe.
+
+    The task enters the key by its :meth:`~seagul_envs.tasks.base.Task.fingerprint` (its content, not its name):
+    ``task`` if given, else the batch solver's ``task`` attribute when that is a Task (as on the solver of
+    :func:`trajopt_batch_solver`), so two tasks that differ in one parameter never share a cached solve. A batch
+    solver without a Task is keyed by ``solver_name`` alone (``solver_key(options, task)`` puts the task there).
+
+    Raises:
+        TypeError: ``task`` is neither a Task nor a str.
+        ValueError: ``task`` is an unknown name or a malformed Task.
     """
 
-    def __init__(self, batch_solver: BatchSolver, cache_dir: str | os.PathLike[str], solver_name: str) -> None:
+    def __init__(
+        self,
+        batch_solver: BatchSolver,
+        cache_dir: str | os.PathLike[str],
+        solver_name: str,
+        task: Task | str | None = None,
+    ) -> None:
         self.batch_solver = batch_solver
         self.cache_dir = Path(cache_dir)
         self.solver_name = solver_name
+        if task is None:
+            own = getattr(batch_solver, "task", None)
+            task = own if isinstance(own, Task) else None
+        self.task_fingerprint: str | None = None
+        """The fingerprint of the task in every key (None: the keys are ``solver_name``, ``x`` and ``tau`` only)."""
+        if task is not None:
+            from seagul_envs.tasks import resolve_task
+
+            self.task_fingerprint = resolve_task(task).fingerprint()
         self.hits = 0
         self.misses = 0
 
     def _path(self, x: np.ndarray, tau: float) -> Path:
         digest = hashlib.sha256()
         digest.update(self.solver_name.encode())
+        if self.task_fingerprint is not None:
+            digest.update(b"\0task:" + self.task_fingerprint.encode())
         digest.update(np.ascontiguousarray(x, dtype=np.float64).tobytes())
         digest.update(np.float64(tau).tobytes())
         key = digest.hexdigest()

@@ -51,6 +51,27 @@ def make_task(name: str) -> Task:
         return task
 
 
+def resolve_task(task: Task | str) -> Task:
+    """The :class:`Task` that ``task`` stands for: a Task object itself (checked), or a registered name's shared task.
+
+    Entry points that accept "a Task object or a registered name" (``solve_many``, ``trajopt_batch_solver``) call it
+    once, in the calling process; from then on the object travels (by pickling to worker processes and Ray actors)
+    and caches are keyed by its :meth:`Task.fingerprint`, never by the name.
+
+    Raises:
+        TypeError: ``task`` is neither a Task nor a str (the message names what it is).
+        ValueError: an unknown name (the message lists the available ones), or a malformed Task (``validate_task``).
+    """
+    if isinstance(task, Task):
+        return validate_task(task)
+    if isinstance(task, str):
+        return make_task(task)
+    raise TypeError(
+        f"expected a seagul_envs Task or a registered task name (one of {available_tasks()}), "
+        f"got {type(task).__name__}: {_short_repr(task)}"
+    )
+
+
 def build_task(name: str, factory: Callable[[], Task]) -> Task:
     """Call ``factory()`` and check that it made a well-formed :class:`Task` called ``name`` (not cached).
 
@@ -102,6 +123,11 @@ def _set_factory(name: str, factory: Callable[[], Task] | None, task: Task | Non
             _TASKS[name] = task
 
 
+def _short_repr(obj: object, limit: int = 80) -> str:
+    text = repr(obj)
+    return text if len(text) <= limit else text[: limit - 3] + "..."
+
+
 def _describe(factory: object) -> str:
     module = getattr(factory, "__module__", None)
     qualname = getattr(factory, "__qualname__", None)
@@ -117,6 +143,7 @@ __all__ = [
     "available_tasks",
     "build_task",
     "make_task",
+    "resolve_task",
     "rk4_map",
     "shared_task",
     "validate_task",

@@ -3,12 +3,17 @@
 A task bundles the CasADi continuous dynamics ``f(x, u)``, the running and terminal costs, the bounds, the goal,
 the admissible start box ``X0`` and time-to-go range ``T0``, and the transcription settings. The Gymnasium
 simulators, the trajectory optimizer and the MPC all read the same object; numeric fast paths are *generated* from
-the CasADi expressions (never retyped).
+the CasADi expressions (never retyped). :meth:`Task.fingerprint` identifies a task by its content: caches (solved
+results, per-worker optimizers, compiled solvers) are keyed by it, not by the name.
 """
 
 from __future__ import annotations
 
+import dataclasses
+import enum
 import functools
+import hashlib
+import pickle
 import re
 from dataclasses import dataclass, field
 from typing import Any
@@ -17,6 +22,12 @@ import casadi as ca
 import numpy as np
 
 _TASK_NAME = re.compile(r"[A-Za-z][A-Za-z0-9]*(?:_[A-Za-z0-9]+)*")  # a CasADi Function name that takes "_suffix"
+
+FINGERPRINT_LENGTH = 16
+"""Hex digits of :meth:`Task.fingerprint` (64 bits of SHA-256)."""
+
+_FINGERPRINT_VERSION = b"seagul-task-fingerprint-v1"  # change it whenever the encoding below changes
+_MEMO = "_fingerprint"  # instance attribute holding the memoised fingerprint (never pickled)
 
 
 @dataclass(frozen=True, eq=False)
@@ -164,8 +175,116 @@ class Task:
         size = None if n is None else (n, self.nx)
         return rng.uniform(self.x0_low, self.x0_high, size=size)
 
+    # ----------------------------------------------------------- identity
+    def fingerprint(self) -> str:
+        """A short hex digest of the task's *content*: equal for equal tasks, in any process.
+
+        Tasks whose fields below are equal get the same fingerprint; a difference in any of them gives another one
+        (up to the odds of a 64-bit hash collision), so caches keyed by it (solved results, per-worker optimizers,
+        compiled solvers) never mix two problems that share a name. Functions are compared as built: the same
+        mathematics written as another expression graph counts as different. It covers every field of the dataclass:
+
+        * ``name``, ``state_names``, ``control_names``;
+        * the CasADi functions ``dynamics``, ``stage_cost`` and ``terminal_cost`` by their ``serialize()`` form (the
+          expression graph with every constant to the bit, the function and argument names);
+        * the arrays ``goal``, ``u_low``/``u_high``, ``x_low``/``x_high``, ``x_final_low``/``x_final_high`` and
+          ``x0_low``/``x0_high`` by dtype, shape and bytes;
+        * ``tau_range``, ``tau_nominal``, ``num_steps``, ``step_bounds``, ``fixed_step``, ``rk4_substeps``,
+          ``control_period`` and ``max_sim_substep`` (floats exactly, by ``float.hex``);
+        * ``params`` (a dataclass: its type and every field's name and value) and ``extras`` (its keys and values:
+          arrays, numbers, strings, containers, dataclasses and CasADi functions by content; other callables, e.g. a
+          renderer, by their module and qualified name; any other object by its pickle).
+
+        It is deterministic across processes and runs (no ids or addresses enter it; checked for the built-in tasks),
+        but CasADi's serialisation format belongs to its version, so another CasADi may give other fingerprints (a
+        cache miss, never a wrong hit). Computed on the first call (about a millisecond) and memoised on the object:
+        a task is treated as immutable (do not write into its arrays). A copy (pickle, ``copy``,
+        ``dataclasses.replace``) computes its own.
+
+        Returns:
+            :data:`FINGERPRINT_LENGTH` lowercase hex digits.
+
+        Raises:
+            TypeError: a CasADi function of the task cannot be serialised (e.g. it wraps a Python callback).
+        """
+        memo = self.__dict__.get(_MEMO)
+        if memo is None:
+            digest = hashlib.sha256(_FINGERPRINT_VERSION)
+            for f in dataclasses.fields(self):
+                _feed(digest, f.name, f.name)
+                _feed(digest, getattr(self, f.name), f.name)
+            memo = digest.hexdigest()[:FINGERPRINT_LENGTH]
+            object.__setattr__(self, _MEMO, memo)  # frozen dataclass: bypass the guard for the private memo
+        return str(memo)
+
+    def __getstate__(self) -> dict[str, Any]:
+        # The memoised fingerprint stays behind: the receiving process computes its own from what arrived, so a
+        # field that did not survive pickling shows up as another fingerprint instead of a wrong cache hit.
+        state = dict(self.__dict__)
+        state.pop(_MEMO, None)
+        return state
+
     def __repr__(self) -> str:
         return f"Task({self.name!r}, nx={self.nx}, nu={self.nu}, m={self.num_steps}, tau={self.tau_range})"
+
+
+def _feed(digest: Any, value: Any, where: str) -> None:
+    """Add a type-tagged, unambiguous encoding of ``value`` to ``digest`` (see :meth:`Task.fingerprint`)."""
+
+    def put(tag: bytes, payload: bytes = b"") -> None:
+        digest.update(tag + len(payload).to_bytes(8, "little") + payload)
+
+    if value is None:
+        put(b"none")
+    elif isinstance(value, bool | np.bool_):
+        put(b"bool", b"1" if value else b"0")
+    elif isinstance(value, int | np.integer):
+        put(b"int", str(int(value)).encode())
+    elif isinstance(value, float | np.floating):
+        put(b"float", float(value).hex().encode())
+    elif isinstance(value, str):
+        put(b"str", value.encode())
+    elif isinstance(value, bytes):
+        put(b"bytes", value)
+    elif isinstance(value, np.ndarray):
+        put(b"array", f"{value.dtype.str}{value.shape}".encode())
+        if value.dtype.hasobject:
+            _feed(digest, value.tolist(), where)
+        else:
+            put(b"data", np.ascontiguousarray(value).tobytes())
+    elif isinstance(value, tuple | list):
+        put(b"tuple" if isinstance(value, tuple) else b"list", str(len(value)).encode())
+        for i, item in enumerate(value):
+            _feed(digest, item, f"{where}[{i}]")
+    elif isinstance(value, dict):
+        put(b"dict", str(len(value)).encode())
+        for key in sorted(value, key=repr):
+            _feed(digest, key, where)
+            _feed(digest, value[key], f"{where}[{key!r}]")
+    elif isinstance(value, ca.Function):
+        try:
+            put(b"casadi", value.serialize().encode())
+        except RuntimeError as e:
+            raise TypeError(
+                f"cannot fingerprint the task: its CasADi function {where} ({value.name()}) does not serialise "
+                f"(build it from SX/MX expressions, not a Python callback): {str(e).strip().splitlines()[-1]}"
+            ) from None
+    elif isinstance(value, enum.Enum):
+        put(b"enum", f"{type(value).__module__}.{type(value).__qualname__}.{value.name}".encode())
+    elif dataclasses.is_dataclass(value) and not isinstance(value, type):
+        put(b"dataclass", f"{type(value).__module__}.{type(value).__qualname__}".encode())
+        for f in dataclasses.fields(value):
+            _feed(digest, f.name, where)
+            _feed(digest, getattr(value, f.name), f"{where}.{f.name}")
+    elif callable(value):
+        module = getattr(value, "__module__", None) or type(value).__module__
+        qualname = getattr(value, "__qualname__", None) or type(value).__qualname__
+        put(b"callable", f"{module}.{qualname}".encode())
+    else:
+        try:
+            put(b"pickle", pickle.dumps(value, protocol=5))
+        except Exception:  # an object that does not pickle (a lock, a handle) enters by its type only
+            put(b"type", f"{type(value).__module__}.{type(value).__qualname__}".encode())
 
 
 def validate_task(task: Any) -> Task:
