@@ -39,6 +39,7 @@ def main() -> None:
     parser.add_argument("--sobolev", type=float, default=1.0, help="weight of the gradient term")
     parser.add_argument("--max-solves", type=int, default=0, help="use only records with index below this (0: all)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (1: a small network is fastest so)")
     args = parser.parse_args()
     if args.cap <= 0 or args.grad_max <= 0 or args.steps < 1:
         parser.error("--cap and --grad-max must be > 0 and --steps >= 1")
@@ -59,6 +60,7 @@ def main() -> None:
     data["grad_ok"] &= torch.tensor(~big)
     print(f"{len(records)} solves, {len(arrays)} knots, {int(big.sum())} gradient labels dropped", flush=True)
 
+    torch.set_num_threads(args.threads)  # more threads than free cores makes each small step many times slower
     torch.manual_seed(args.seed)
     generator = torch.Generator().manual_seed(args.seed)
     optimizer = torch.optim.Adam(network.parameters(), lr=args.lr)

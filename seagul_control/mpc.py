@@ -38,6 +38,12 @@ never negative) in each of them.
 For a zero-cost equilibrium goal (the acrobot) ``anchor_goal`` (default on there) first replaces ``Vhat`` by
 ``Vhat - Vhat(x*, tau) - dVhat/dx(x*, tau) (x - x*)``: the true value and its gradient vanish at the goal, and a
 network's small first-order error there otherwise shifts the closed loop's resting point off the goal.
+``goal_blend = c > 0`` then hands the goal's neighbourhood to the task's quadratic: the learned cost becomes
+``b l_f + (1 - b) Vhat`` with ``b = exp(-l_f / c)``. Near an equilibrium goal ``l_f`` (the DARE quadratic of the
+transcription's own linearisation) *is* the value to second order (measured on the acrobot: ``V = l_f`` while
+``l_f <~ 1``), while a network fitted to values up to tens errs there by more than ``V`` itself, so the closed loop
+would settle next to the goal instead of on it (docs/closed_loop.md). Away from the goal (``l_f >> c``) the network
+is untouched. The blend is applied to the guarded learned cost, before the end-of-episode switch.
 
 **Speed.** The default solver is CasADi's ``fatrop`` (the transcription orders variables and constraints stage by
 stage); with ``jit=True`` (default) the NLP functions are compiled to C once and the object file is cached on disk
@@ -473,6 +479,8 @@ class LimitedLookaheadMPC(_MPCBase):
         clamp: use ``max(Vhat, 0)`` (smooth) as the learned cost.
         anchor_goal: subtract the network's value and gradient at the goal (``Vhat - Vhat(x*) - dVhat(x*) (x - x*)``),
             exact knowledge for a zero-cost equilibrium goal; default: on for such tasks (acrobot), off otherwise.
+        goal_blend: scale ``c`` (value units) of the blend ``b l_f + (1 - b) Vhat``, ``b = exp(-l_f / c)``, that hands
+            an equilibrium goal's neighbourhood to the task's quadratic (module docstring); 0 = off. Default: off.
         final_box: impose the task's terminal box in the final-phase problems.
         steps: ``"fixed"`` (default; every step is ``dt``) or ``"free"`` (``h_k`` in the task's step bounds with
             ``sum(h) <= tau_now``, paper Eq. 3's general form; IPOPT by default, see :meth:`default_solver`).
@@ -505,6 +513,7 @@ class LimitedLookaheadMPC(_MPCBase):
         trust_weight: float = 100.0,
         clamp: bool = True,
         anchor_goal: bool | None = None,
+        goal_blend: float | None = None,
         final_box: bool = True,
         steps: str = "fixed",
         end_phase: str | None = None,
@@ -536,6 +545,11 @@ class LimitedLookaheadMPC(_MPCBase):
         self.anchor_goal = equilibrium if anchor_goal is None else bool(anchor_goal)
         if self.anchor_goal and not equilibrium:
             raise ValueError(f"{self.name}: anchor_goal needs a goal that is a zero-cost equilibrium of the task")
+        self.goal_blend = 0.0 if goal_blend is None else float(goal_blend)
+        if not (np.isfinite(self.goal_blend) and self.goal_blend >= 0):
+            raise ValueError(f"{self.name}: goal_blend must be a finite number >= 0 (0 = off), got {goal_blend!r}")
+        if self.goal_blend > 0 and not equilibrium:
+            raise ValueError(f"{self.name}: goal_blend needs a goal that is a zero-cost equilibrium of the task")
         self._configure_solver(solver, steps == "free", jit, jit_cache_dir, jit_flags, max_iter, tol, solver_options)
 
         self._vf_fn: ca.Function | None = None
@@ -675,6 +689,9 @@ class LimitedLookaheadMPC(_MPCBase):
             v = v + w * ca.sumsqr(outside)
         elif self.trust_region == "lqr":
             v = v + lf
+        if self.goal_blend > 0:
+            b = ca.exp(-lf / self.goal_blend)
+            v = b * lf + (1 - b) * v
         return ca.Function("mpc_terminal", [x, tau, theta], [s * v + (1 - s) * lf])
 
     def _queries_value(self, theta: np.ndarray) -> bool:

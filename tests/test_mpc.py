@@ -323,6 +323,30 @@ def test_goal_anchoring_removes_the_networks_value_and_slope_at_the_goal():
         LimitedLookaheadMPC(make_task("glider"), None, 10, anchor_goal=True, **FAST)
 
 
+def test_goal_blend_is_l_f_at_the_goal_and_the_network_far_away():
+    pytest.importorskip("torch")
+    from seagul_learn.value_network import ValueNetwork
+
+    task = make_task("acrobot")
+    net = ValueNetwork(4, (32,), task_name="acrobot", seed=3)
+    plain = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, **FAST)
+    blended = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, goal_blend=0.5, **FAST)
+    g = task.goal
+    for d in (np.zeros(4), np.array([0.01, -0.02, 0.05, 0.0]), np.array([0.3, 0.2, -0.5, 1.0]), np.full(4, 3.0)):
+        x = g + d
+        lf = task.terminal_cost_value(x)
+        b = np.exp(-lf / 0.5)
+        expected = b * lf + (1 - b) * plain.terminal_cost_value(x, 2.0)
+        assert blended.terminal_cost_value(x, 2.0) == pytest.approx(expected, rel=1e-10, abs=1e-12)
+    far = g + np.full(4, 3.0)
+    assert blended.terminal_cost_value(far, 2.0) == pytest.approx(plain.terminal_cost_value(far, 2.0), rel=1e-6)
+    assert LimitedLookaheadMPC(task, net, 5, **FAST).goal_blend == 0.0
+    with pytest.raises(ValueError, match="goal_blend must be a finite number >= 0"):
+        LimitedLookaheadMPC(task, net, 5, goal_blend=-1.0, **FAST)
+    with pytest.raises(ValueError, match="goal_blend needs a goal that is a zero-cost equilibrium"):
+        LimitedLookaheadMPC(make_task("glider"), None, 10, goal_blend=1.0, **FAST)
+
+
 def test_jit_object_cache_is_keyed_by_the_generated_source(tmp_path):
     from seagul_control.mpc import find_c_compiler, jit_solver_options
 
