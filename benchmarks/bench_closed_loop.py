@@ -51,18 +51,37 @@ sys.path.insert(0, str(ROOT))
 from seagul_control.evaluation import PolicySpec, evaluate, start_grid  # noqa: E402
 from seagul_envs import make_task  # noqa: E402
 
-#: Learning methods: TrainConfig overrides on top of :data:`COMMON` (the shipped default is ``SHIPPED``).
+#: Learning methods: TrainConfig overrides on top of ``BenchConfig.train`` (the shipped default is ``SHIPPED``).
 METHODS: dict[str, dict[str, Any]] = {
     "uniform": {"sampler": "uniform"},
     "adversarial": {"sampler": "adversarial"},
     "uniform+sobolev": {"sampler": "uniform", "sobolev_weight": 1.0},
     "adversarial+sobolev": {"sampler": "adversarial", "sobolev_weight": 1.0},
+    # 1,000 uniform solves, then rounds of 50 tail problems at the queries of the "lqr"-guarded collecting MPC
+    # (a safer controller than the deployed one: its queries stay teachable), chosen at random among them.
     "closed-loop+sobolev": {
         "sampler": "closed-loop",
         "sobolev_weight": 1.0,
-        "cl_uniform_solves": 100,
-        "value_cap": 300.0,
+        "cl_uniform_solves": 1000,
+        "cl_trust_region": "lqr",
+        "cl_warmup_rounds": 0,
+        "cl_selection": "random",
+        "cl_episodes": 20,
+        "cl_jit": False,
     },
+}
+
+#: Training settings every method shares in the full run (docs/closed_loop.md, "The training fix"): a 2 x 64
+#: network, 50 solves and 1,000 Adam steps per round, labels capped at 50, extreme gradient labels dropped, the
+#: standardisation following the buffer, and a fresh 20 k-step refit on everything at the end.
+FULL_TRAIN: dict[str, Any] = {
+    "hidden": (64, 64),
+    "solves_per_round": 50,
+    "train_steps_per_round": 1000,
+    "value_cap": 50.0,
+    "grad_label_max": 10.0,
+    "renormalize": True,
+    "refit_steps": 20000,
 }
 SHIPPED = "closed-loop+sobolev"
 
@@ -72,7 +91,7 @@ class BenchConfig:
     """Every number of one benchmark run (``--quick`` replaces some of them)."""
 
     task: str = "acrobot"
-    budgets: tuple[int, ...] = (100, 300)
+    budgets: tuple[int, ...] = (1000, 1500)
     seeds: int = 5
     seed_list: tuple[int, ...] | None = None
     """Explicit seeds (default ``range(seeds)``)."""
@@ -80,7 +99,9 @@ class BenchConfig:
     heldout: int = 100
     query_sample: int = 30
     horizon: int = 5
-    trust_region: str = "lqr"
+    trust_region: str = "none"
+    goal_blend: float = 1.0
+    """``LimitedLookaheadMPC(goal_blend=...)`` of the deployed controller (0 = off; equilibrium goals only)."""
     methods: tuple[str, ...] = tuple(METHODS)
     train: dict[str, Any] = field(default_factory=dict)
     """TrainConfig fields shared by every method."""
@@ -92,12 +113,9 @@ class BenchConfig:
         from seagul_learn.training import TrainConfig
 
         defaults = TrainConfig()
-        common = {
-            "hidden": defaults.hidden,
-            "solves_per_round": defaults.solves_per_round,
-            "train_steps_per_round": defaults.train_steps_per_round,
-        }
+        blend = 1.0 if task == "acrobot" else 0.0
         if quick:
+            common = {"hidden": defaults.hidden, "solves_per_round": defaults.solves_per_round}
             return cls(
                 task=task,
                 budgets=(20, 50),
@@ -105,11 +123,12 @@ class BenchConfig:
                 grid=3,
                 heldout=4,
                 query_sample=6,
+                goal_blend=blend,
                 methods=("uniform+sobolev", SHIPPED),
-                train={**common, "train_steps_per_round": 100, "cl_episodes": 4},
-                method_overrides={SHIPPED: {"cl_uniform_solves": 25}},
+                train={**common, "train_steps_per_round": 100, "renormalize": True, "value_cap": 50.0},
+                method_overrides={SHIPPED: {"cl_uniform_solves": 25, "cl_episodes": 4}},
             )
-        return cls(task=task, train=common)
+        return cls(task=task, train=dict(FULL_TRAIN), goal_blend=blend, methods=("uniform+sobolev", SHIPPED))
 
 
 # ------------------------------------------------------------------------------------------------ training
@@ -132,7 +151,7 @@ def train_all(bench: BenchConfig, out: Path, workers: int) -> dict[tuple[str, in
         for seed in bench.seed_list or range(bench.seeds):
             cfg = {
                 "task": bench.task,
-                # The closed-loop sampler collects with the controller as it is deployed (same guard).
+                # By default the closed-loop sampler collects with the deployed guard; a method may choose another.
                 "cl_trust_region": bench.trust_region,
                 **bench.train,
                 **METHODS[method],
@@ -176,6 +195,16 @@ def budget_stats(run: Path, budget: int, pretrain: int) -> dict[str, float]:
 
 
 # ---------------------------------------------------------------------------------------------- evaluation
+def mpc_options(bench: BenchConfig) -> tuple[tuple[str, Any], ...]:
+    """Constructor options of the deployed ``LimitedLookaheadMPC`` (compiled, as a user runs it)."""
+    options: tuple[tuple[str, Any], ...] = (
+        ("horizon", bench.horizon),
+        ("trust_region", bench.trust_region),
+        ("jit", True),
+    )
+    return options + ((("goal_blend", bench.goal_blend),) if bench.goal_blend > 0 else ())
+
+
 def heldout_starts(task_name: str, n: int) -> np.ndarray:
     """``n`` starts drawn uniformly from X0 with the held-out seed (never a training stream)."""
     return make_task(task_name).sample_x0(np.random.default_rng(20211231), n)
@@ -191,12 +220,7 @@ def evaluate_network(
     from seagul_learn.solving import trajopt_batch_solver
     from seagul_learn.value_network import ValueNetwork
 
-    spec = PolicySpec(
-        "mpc",
-        "mpc",
-        str(path),
-        (("horizon", bench.horizon), ("trust_region", bench.trust_region), ("jit", True)),
-    )
+    spec = PolicySpec("mpc", "mpc", str(path), mpc_options(bench))
     results = evaluate(bench.task, [spec], starts, workers=workers, progress=False, record_queries=True)
     grid, held = results[:n_grid], results[n_grid:]
     queries = np.array([q for r in results for q in r.queries]).reshape(-1, make_task(bench.task).nx + 1)
@@ -236,9 +260,7 @@ def full_horizon(bench: BenchConfig, starts: np.ndarray, n_grid: int, workers: i
 
 def timed_steps(bench: BenchConfig, path: Path, starts: np.ndarray) -> dict[str, float]:
     """MPC solver step times of the shipped network in one process (no parallel episodes sharing the cores)."""
-    spec = PolicySpec(
-        "mpc", "timed", str(path), (("horizon", bench.horizon), ("trust_region", bench.trust_region), ("jit", True))
-    )
+    spec = PolicySpec("mpc", "timed", str(path), mpc_options(bench))
     results = evaluate(bench.task, [spec], starts, workers=1, progress=False)
     times = np.array([t for r in results for t in r.solve_times]) * 1e3
     return {"median_ms": float(np.median(times)), "p95_ms": float(np.percentile(times, 95)), "steps": int(times.size)}
@@ -382,6 +404,7 @@ def run_task(bench: BenchConfig, out: Path, workers: int, ship_dir: Path | None)
         "network_seed": rep["seed"],
         "horizon": bench.horizon,
         "trust_region": bench.trust_region,
+        "goal_blend": bench.goal_blend,
         "median_ms": timing["median_ms"],
         "p95_ms": timing["p95_ms"],
         "query_error_median": float(np.nanmedian([s["query_error"]["median"] for s in shipped])),
@@ -425,6 +448,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--methods", default=None, help="comma-separated subset of " + ",".join(METHODS))
     parser.add_argument("--budgets", default=None, help="comma-separated budgets (override)")
     parser.add_argument("--trust-region", choices=("lqr", "none", "box"), default=None, help="the deployed guard")
+    parser.add_argument("--goal-blend", type=float, default=None, help="the deployed MPC's goal_blend (0 = off)")
     parser.add_argument("--no-ship", action="store_true", help="do not copy the shipped network into the repository")
     args = parser.parse_args(argv)
     out = Path(args.out or f"/tmp/seagul-bench-closed-loop{'-quick' if args.quick else ''}")
@@ -445,6 +469,8 @@ def main(argv: list[str] | None = None) -> int:
             bench.seeds = len(bench.seed_list)
         if args.trust_region:
             bench.trust_region = args.trust_region
+        if args.goal_blend is not None:
+            bench.goal_blend = args.goal_blend
         if args.budgets:
             bench.budgets = tuple(int(b) for b in args.budgets.split(","))
         result[task] = run_task(bench, out / task, args.workers, ship)
