@@ -5,11 +5,13 @@ picklable), once per process and reused for every episode there: ``"mpc"`` (a li
 value network, or the task's own terminal cost without one), ``"full"`` (the full-horizon MPC), ``"lqr"`` and
 ``"sb3"`` (a saved stable-baselines3 model, with its ``VecNormalize`` statistics if present).
 
-Metrics per episode (paper §6): the final distance to the goal ``||x(T) - x*||`` (acrobot: success when < 0.05),
-the trajectory cost (minus the episode return: running plus terminal cost, paper Fig. 4) and the glider's perch
-success (``|x|, |z| < 0.05`` and ``|dx|, |dz| <= 2`` at the end), plus the solver statistics of MPC policies.
-Episodes are independent and every policy is deterministic, so results do not depend on the number of worker
-processes.
+Metrics per episode (paper §6): the final distance to the goal ``||x(T) - x*||``, the trajectory cost (minus the
+episode return: running plus terminal cost, paper Fig. 4) and success by the task's rule (``task.profile.success``:
+acrobot ``||x(T) - x*|| < 0.05``, glider perched, ``|x|, |z| < 0.05`` and ``|dx|, |dz| <= 2`` at the end), plus the
+solver statistics of MPC policies. Episodes run in ``seagul_envs.make_env(task)`` and the start grid, the default
+MPC horizon and the success rule come from the task's profile, so any Task (not only a registered name) can be
+evaluated; the Task object itself is sent to the worker processes. Episodes are independent and every policy is
+deterministic, so results do not depend on the number of worker processes.
 
 This module only runs episodes and returns :class:`EpisodeResult` data; it never imports matplotlib. The tables and
 figures made from the results (``summarize``, ``write_outputs``, ``plot_heatmaps``, ``plot_glider_trajectories``)
@@ -29,17 +31,28 @@ from typing import Any
 
 import numpy as np
 
-from seagul_envs.tasks import make_task
+from seagul_envs.tasks import available_tasks, make_task, resolve_task
+from seagul_envs.tasks.acrobot import SUCCESS_DISTANCE as ACROBOT_SUCCESS_DISTANCE
 from seagul_envs.tasks.base import Task
+from seagul_envs.tasks.glider import PERCH_POSITION_TOL, PERCH_SPEED_TOL
 
-ENV_IDS = {"acrobot": "SeagulAcrobot-v0", "glider": "SeagulGlider-v0"}
-"""The env each task is evaluated in."""
-ACROBOT_SUCCESS_DISTANCE = 0.05
-"""Acrobot success: ``||x(5 s) - x*|| < 0.05`` (docs/spec.md §3.6)."""
-PERCH_POSITION_TOL = 0.05
-"""Glider perch: ``|x|, |z| < 0.05`` m at the end (docs/spec.md §4.6)."""
-PERCH_SPEED_TOL = 2.0
-"""Glider perch: ``|dx|, |dz| <= 2`` m/s at the end."""
+__all__ = [
+    "ACROBOT_SUCCESS_DISTANCE",
+    "PERCH_POSITION_TOL",
+    "PERCH_SPEED_TOL",
+    "POLICY_KINDS",
+    "EpisodeResult",
+    "PolicySpec",
+    "SB3Policy",
+    "build_policy",
+    "default_horizon",
+    "episode_env",
+    "evaluate",
+    "is_success",
+    "run_episode",
+    "run_policy_episode",
+    "start_grid",
+]
 POLICY_KINDS = ("mpc", "full", "lqr", "sb3")
 
 
@@ -85,7 +98,7 @@ class EpisodeResult:
     final_distance: float
     cost: float
     success: bool
-    """Acrobot: final distance < 0.05; glider: perched."""
+    """The task's success rule (``task.profile.success``; acrobot: final distance < 0.05; glider: perched)."""
     terminated: bool
     """Left the task's state bounds (glider crash)."""
     steps: int
@@ -103,24 +116,27 @@ class EpisodeResult:
 
 
 # ------------------------------------------------------------------------------------------------ starts
-def start_grid(task: Task, n: int) -> tuple[np.ndarray, dict[str, Any]]:
-    """``n x n`` starts and a description of the grid's axes.
+def start_grid(task: Task | str, n: int) -> tuple[np.ndarray, dict[str, Any]]:
+    """``n x n`` starts and a description of the grid's axes (``task.profile.grid``).
 
-    Acrobot: ``(th1, th2)`` over X0's angle box at zero velocity (Fig. 2). Glider: ``(x, z)`` over X0 with the other
-    coordinates at the centre of X0 (Fig. 4).
+    Two coordinates span X0, the others sit at X0's centre unless the profile fixes them. Acrobot: ``(th1, th2)``
+    over X0's angle box at zero velocity (Fig. 2). Glider: ``(x, z)`` over X0 with the other coordinates at the
+    centre of X0 (Fig. 4).
     """
+    task = resolve_task(task)
     if int(n) < 1:
         raise ValueError(f"grid size must be >= 1, got {n}")
     n = int(n)
+    grid = task.profile.grid
     centre = 0.5 * (task.x0_low + task.x0_high)
-    dims = (0, 1)  # acrobot: th1, th2; glider: x, z
+    for i, value in grid.fixed:
+        centre[i] = value
+    dims = grid.resolved_coords(task)
     axes = [np.linspace(task.x0_low[d], task.x0_high[d], n) if n > 1 else np.array([centre[d]]) for d in dims]
     starts = []
     for a in axes[0]:
         for b in axes[1]:
             x = centre.copy()
-            if task.name == "acrobot":
-                x[2:] = 0.0
             x[dims[0]], x[dims[1]] = a, b
             starts.append(x)
     info = {
@@ -136,7 +152,6 @@ class SB3Policy:
     """A saved stable-baselines3 model behind the predictor protocol, normalising observations if needed."""
 
     def __init__(self, task: Task, path: str, algo: str = "PPO", vecnormalize: str | None = None) -> None:
-        import gymnasium as gym
         import stable_baselines3
         from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
@@ -149,7 +164,7 @@ class SB3Policy:
         stats = vecnormalize or _vecnormalize_beside(path)
         self.normalizer: Any = None
         if stats is not None:
-            venv = DummyVecEnv([lambda: gym.make(ENV_IDS[task.name])])
+            venv = DummyVecEnv([lambda: episode_env(task)])
             self.normalizer = VecNormalize.load(stats, venv)
             self.normalizer.training = False
             self.normalizer.norm_reward = False
@@ -170,14 +185,37 @@ def _vecnormalize_beside(path: str) -> str | None:
 
 
 _POLICIES: dict[tuple[str, PolicySpec], Any] = {}
+_TASKS: dict[str, Task] = {}  # fingerprint -> the one Task object this process uses for it
 
 
-def build_policy(task_name: str, spec: PolicySpec) -> Any:
-    """The predictor described by ``spec`` (cached per process: solvers are built once)."""
-    key = (task_name, spec)
+def _canonical_task(task: Task | str) -> Task:
+    """One Task object per content in this process: a name's shared task, or the first copy of a fingerprint seen.
+
+    Workers receive a fresh unpickled copy with every chunk; mapping copies to one object keeps the per-task caches
+    (simulators, built policies) warm, and a copy of a registered task maps to its shared object (so the env is
+    exactly ``gym.make`` of its id).
+    """
+    if isinstance(task, str):
+        return make_task(task)
+    fp = task.fingerprint()
+    known = _TASKS.get(fp)
+    if known is None:
+        known = task
+        if task.name in available_tasks():
+            shared = make_task(task.name)
+            if shared.fingerprint() == fp:
+                known = shared
+        _TASKS[fp] = known
+    return known
+
+
+def build_policy(task: Task | str, spec: PolicySpec) -> Any:
+    """The predictor described by ``spec`` for ``task`` (a Task or a registered name; cached per process and task
+    content: solvers are built once)."""
+    task = _canonical_task(task)
+    key = (task.fingerprint(), spec)
     if key in _POLICIES:
         return _POLICIES[key]
-    task = make_task(task_name)
     options = spec.option_dict()
     if spec.kind == "lqr":
         from seagul_control.lqr import LQRPolicy
@@ -204,22 +242,32 @@ def build_policy(task_name: str, spec: PolicySpec) -> Any:
 
 
 def default_horizon(task: Task) -> int:
-    """Paper §6: 5 steps (0.5 s) for the acrobot; about 250 ms (10 control periods) for the glider."""
-    return 5 if task.name == "acrobot" else max(1, round(0.25 / task.control_period))
+    """The task's default MPC lookahead (``task.profile.default_horizon``). Paper §6: 5 steps (0.5 s) for the
+    acrobot; about 250 ms (10 control periods) for the glider and, by default, for a new task."""
+    return task.profile.default_horizon(task)
+
+
+def episode_env(task: Task) -> Any:
+    """The Gymnasium env the task's episodes run in: ``seagul_envs.make_env(task)`` (a registered task's shared
+    object gives exactly ``gym.make`` of its id; any other Task, a variant included, is simulated as given)."""
+    from seagul_envs.envs.task_env import make_env
+
+    return make_env(task)
 
 
 # ------------------------------------------------------------------------------------------------ episodes
 def run_episode(
-    task_name: str,
+    task: Task | str,
     spec: PolicySpec,
     x0: np.ndarray,
     index: int = 0,
     record: bool = False,
     record_queries: bool = False,
 ) -> EpisodeResult:
-    """One episode of the policy ``spec`` describes from ``x0`` at the nominal time to go."""
-    task = make_task(task_name)
-    policy = build_policy(task_name, spec)
+    """One episode of the policy ``spec`` describes from ``x0`` at the nominal time to go (``task``: a Task or a
+    registered name)."""
+    task = _canonical_task(task)
+    policy = build_policy(task, spec)
     episode, infos = run_policy_episode(task, policy, x0, index=index, record=record, label=spec.name)
     if record_queries:
         episode.queries = [
@@ -240,14 +288,15 @@ def run_policy_episode(
 ) -> tuple[EpisodeResult, list[Any]]:
     """One episode of a predictor object from ``x0`` in the task's env; also returns its per-step solver infos.
 
-    The infos are the MPC's :class:`~seagul_control.mpc.MPCStepInfo` of each step (empty for policies without
-    ``stats``); they carry the planned terminal states (the planner's queries of the value function).
+    The env is ``gym.make(env_id)`` if given, else :func:`episode_env` (``make_env(task)``). The infos are the
+    MPC's :class:`~seagul_control.mpc.MPCStepInfo` of each step (empty for policies without ``stats``); they carry
+    the planned terminal states (the planner's queries of the value function).
     """
     import gymnasium as gym
 
     import seagul_envs  # noqa: F401  (registers the envs)
 
-    env = gym.make(env_id or ENV_IDS[task.name])
+    env = gym.make(env_id) if env_id else episode_env(task)
     obs, info = env.reset(options={"state": np.asarray(x0, dtype=float)})
     stats = getattr(policy, "stats", None)
     first_stat = len(stats) if stats is not None else 0
@@ -287,31 +336,24 @@ def run_policy_episode(
 
 
 def is_success(task: Task, x: np.ndarray, terminated: bool = False) -> bool:
-    """Acrobot: ``||x - x*|| < 0.05``; glider: perched (position and speed tolerances) without crashing."""
-    if task.name == "glider":
-        return bool(
-            not terminated
-            and abs(x[0]) < PERCH_POSITION_TOL
-            and abs(x[1]) < PERCH_POSITION_TOL
-            and abs(x[4]) <= PERCH_SPEED_TOL
-            and abs(x[5]) <= PERCH_SPEED_TOL
-        )
-    return bool(np.linalg.norm(x - task.goal) < ACROBOT_SUCCESS_DISTANCE)
+    """The task's success rule (``task.profile.success``) on an episode's final state. Acrobot:
+    ``||x - x*|| < 0.05``; glider: perched (position and speed tolerances) without crashing."""
+    return task.profile.is_success(task, x, terminated)
 
 
 def _run_chunk(
-    task_name: str,
+    task: Task | str,
     spec: PolicySpec,
     starts: np.ndarray,
     indices: Sequence[int],
     record: bool,
     record_queries: bool = False,
 ) -> list[EpisodeResult]:
-    return [run_episode(task_name, spec, x0, i, record, record_queries) for x0, i in zip(starts, indices, strict=True)]
+    return [run_episode(task, spec, x0, i, record, record_queries) for x0, i in zip(starts, indices, strict=True)]
 
 
 def evaluate(
-    task_name: str,
+    task: Task | str,
     specs: Sequence[PolicySpec],
     starts: np.ndarray,
     workers: int = 1,
@@ -322,13 +364,16 @@ def evaluate(
 ) -> list[EpisodeResult]:
     """Every policy from every start (joblib processes when ``workers > 1``); results ordered by policy, start.
 
-    ``record`` keeps every visited state, ``record_queries`` the MPCs' planned terminal states (for the
-    planner-query error, :func:`seagul_learn.closed_loop.query_errors`).
+    ``task`` is a Task object or a registered name, resolved once here; the Task itself is what the worker
+    processes receive (nothing is looked up by name there). ``record`` keeps every visited state,
+    ``record_queries`` the MPCs' planned terminal states (for the planner-query error,
+    :func:`seagul_learn.closed_loop.query_errors`).
     """
     from joblib import Parallel, delayed
     from tqdm.auto import tqdm
 
-    task = make_task(task_name)
+    task = _canonical_task(resolve_task(task))
+    task_name = task.name
     starts = np.asarray(starts, dtype=float)
     if starts.ndim != 2 or starts.shape[1] != task.nx:
         raise ValueError(f"starts must have shape (n, {task.nx}), got {starts.shape}")
@@ -339,7 +384,7 @@ def evaluate(
         raise ValueError(f"policy labels must be unique, got {names}")
     # Build each policy here first: a JIT compile then happens once and the workers load the cached object code.
     for spec in specs:
-        build_policy(task_name, spec)
+        build_policy(task, spec)
     jobs = []
     for spec in specs:
         for lo in range(0, len(starts), chunk_size):
@@ -349,11 +394,11 @@ def evaluate(
     results: list[EpisodeResult] = []
     if workers == 1:
         outputs: Iterator[list[EpisodeResult]] = (
-            _run_chunk(task_name, spec, starts[idx], idx, record, record_queries) for spec, idx in jobs
+            _run_chunk(task, spec, starts[idx], idx, record, record_queries) for spec, idx in jobs
         )
     else:
         outputs = Parallel(n_jobs=int(workers), return_as="generator")(
-            delayed(_run_chunk)(task_name, spec, starts[idx], idx, record, record_queries) for spec, idx in jobs
+            delayed(_run_chunk)(task, spec, starts[idx], idx, record, record_queries) for spec, idx in jobs
         )
     for chunk in outputs:
         results.extend(chunk)
@@ -370,7 +415,18 @@ _MOVED_TO_REPORT = ("summarize", "write_outputs", "plot_heatmaps", "plot_glider_
 
 
 def __getattr__(name: str) -> Any:
-    """The moved table/figure functions, imported lazily from :mod:`seagul_learn.report` with a deprecation warning."""
+    """The moved table/figure functions, imported lazily from :mod:`seagul_learn.report` with a deprecation warning;
+    ``ENV_IDS``, a deprecated name-keyed view of the built-in tasks' ``profile.env_id``."""
+    if name == "ENV_IDS":
+        from seagul_envs.tasks import BUILTIN_TASKS
+
+        warnings.warn(
+            "seagul_control.evaluation.ENV_IDS is deprecated; episodes run in episode_env(task) "
+            "(seagul_envs.make_env), the id is task.profile.env_id",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return {n: make_task(n).profile.env_id for n in sorted(BUILTIN_TASKS)}
     if name in _MOVED_TO_REPORT:
         warnings.warn(
             f"seagul_control.evaluation.{name} is deprecated and will be removed in the next release; "

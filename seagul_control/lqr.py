@@ -106,8 +106,10 @@ class LQRPolicy:
     Args:
         task: the task.
         dt: control period (default: the task's).
-        Q: state weight (default: the task's ``extras["Q"]`` for the acrobot, ``extras["Qf"]`` for tracking).
-        R: input weight (default: ``extras["R"]``, or ``0.01 * I`` for tracking when the task has none).
+        Q: state weight (default: the task's, ``task.profile.lqr_weights``: ``profile.lqr_Q``, else ``extras["Q"]``
+            at an equilibrium goal and ``extras["Qf"]`` for tracking, else the identity).
+        R: input weight (default: ``profile.lqr_R``, else ``extras["R"]`` at an equilibrium goal and ``0.01 * I``
+            for tracking, else the identity).
         nominal: a given nominal trajectory for the time-varying variant (default: solved once at construction).
     """
 
@@ -123,21 +125,22 @@ class LQRPolicy:
         self.dt = float(task.control_period if dt is None else dt)
         if not (np.isfinite(self.dt) and self.dt > 0):
             raise ValueError(f"LQRPolicy: dt must be a positive number of seconds, got {dt!r}")
-        nx, nu = task.nx, task.nu
+        nu = task.nu
         # An equilibrium goal (zero drift) gets the stationary LQR; otherwise track a nominal trajectory.
         drift = np.asarray(task.dynamics(task.goal, np.zeros(nu))).ravel()
         self.time_varying = nominal is not None or not bool(np.allclose(drift, 0.0, atol=1e-9))
         self.last_info: list[dict[str, Any]] = []
+        Q_task, R_task = task.profile.lqr_weights(task, self.time_varying)
         if not self.time_varying:
-            Qm = np.asarray(task.extras.get("Q", np.eye(nx)) if Q is None else Q, dtype=float)
-            Rm = np.asarray(task.extras.get("R", np.eye(nu)) if R is None else R, dtype=float)
+            Qm = np.asarray(Q_task if Q is None else Q, dtype=float)
+            Rm = np.asarray(R_task if R is None else R, dtype=float)
             self.A, self.B = goal_linearization(task, self.dt)
             self.K, self.P = discrete_lqr(self.A, self.B, self.dt * Qm, self.dt * Rm)
             self.nominal = None
             self.gains = self.K[None]
         else:
-            Qm = np.asarray(task.extras.get("Qf", np.eye(nx)) if Q is None else Q, dtype=float)
-            Rm = np.asarray(0.01 * np.eye(nu) if R is None else R, dtype=float)
+            Qm = np.asarray(Q_task if Q is None else Q, dtype=float)
+            Rm = np.asarray(R_task if R is None else R, dtype=float)
             self.nominal = solve_nominal(task, self.dt) if nominal is None else nominal
             self.gains = tvlqr_gains(task, self.nominal, Qm, Rm)
             self.K = self.gains[0]

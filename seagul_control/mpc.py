@@ -480,7 +480,8 @@ class LimitedLookaheadMPC(_MPCBase):
         anchor_goal: subtract the network's value and gradient at the goal (``Vhat - Vhat(x*) - dVhat(x*) (x - x*)``),
             exact knowledge for a zero-cost equilibrium goal; default: on for such tasks (acrobot), off otherwise.
         goal_blend: scale ``c`` (value units) of the blend ``b l_f + (1 - b) Vhat``, ``b = exp(-l_f / c)``, that hands
-            an equilibrium goal's neighbourhood to the task's quadratic (module docstring); 0 = off. Default: off.
+            an equilibrium goal's neighbourhood to the task's quadratic (module docstring); 0 = off. Default: the
+            task's ``profile.mpc_goal_blend`` (acrobot 1.0; 0 for a task without an equilibrium goal).
         final_box: impose the task's terminal box in the final-phase problems.
         steps: ``"fixed"`` (default; every step is ``dt``) or ``"free"`` (``h_k`` in the task's step bounds with
             ``sum(h) <= tau_now``, paper Eq. 3's general form; IPOPT by default, see :meth:`default_solver`).
@@ -545,7 +546,9 @@ class LimitedLookaheadMPC(_MPCBase):
         self.anchor_goal = equilibrium if anchor_goal is None else bool(anchor_goal)
         if self.anchor_goal and not equilibrium:
             raise ValueError(f"{self.name}: anchor_goal needs a goal that is a zero-cost equilibrium of the task")
-        self.goal_blend = 0.0 if goal_blend is None else float(goal_blend)
+        if goal_blend is None:
+            goal_blend = float(getattr(task.profile, "mpc_goal_blend", 0.0)) if equilibrium else 0.0
+        self.goal_blend = float(goal_blend)
         if not (np.isfinite(self.goal_blend) and self.goal_blend >= 0):
             raise ValueError(f"{self.name}: goal_blend must be a finite number >= 0 (0 = off), got {goal_blend!r}")
         if self.goal_blend > 0 and not equilibrium:

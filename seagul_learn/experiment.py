@@ -30,7 +30,9 @@ cached on disk bit for bit, and the closed-loop episodes of each policy and each
 they are complete. So Ctrl-C (or SIGKILL) at any moment leaves a run that ``seagul reproduce TASK --resume DIR``
 finishes with the same numbers.
 
-Presets (one place for every number of the experiment; the paper's settings are §6 of the paper):
+Presets (one place for every number of the experiment; the paper's settings are §6 of the paper) live on the task,
+``task.profile.presets`` (the acrobot's and the glider's in their task modules, a new task gets
+:data:`seagul_envs.tasks.profile.DEFAULT_PRESETS`); :func:`task_preset` makes the :class:`Preset`:
 
 * ``quick`` — the README's main job: fewer seeds, a smaller budget and a coarser closed-loop grid than the paper,
   same algorithms.
@@ -47,14 +49,15 @@ import os
 import shutil
 import time
 from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from datetime import datetime
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 
-from seagul_envs import available_tasks, make_task
+from seagul_envs import Task, available_tasks, make_task, resolve_task
+from seagul_envs.tasks import task_label
 from seagul_learn.comparison import (
     METRICS,
     PairedComparison,
@@ -184,116 +187,50 @@ class Preset:
         return {**common, **METHODS[method], **own}
 
 
-# Quick/paper closed-loop settings are the library's defaults; smoke shrinks them to seconds: one interpreted
-# episode per round, half of each round's solves uniform, tails of multiples of 5 intervals only (few optimizers).
-_SMOKE_OVERRIDES: tuple[tuple[str, Any], ...] = (
-    ("cl_jit", False),
-    ("cl_episodes", 1),
-    ("cl_uniform_solves", 0),
-    ("cl_uniform_fraction", 0.5),
-    ("cl_tail_stride", 5),
-)
+def task_preset(task: Task, name: str) -> Preset:
+    """The preset ``name`` of ``task`` (``task.profile.presets``; a preset without ``mpc_horizon`` gets the task's
+    default horizon).
 
-# Quick: the closed-loop method starts its loop after 20 uniform solves (a 10-solve network's planner queries are
-# states with values of 1e4 and more), 10 episodes a round, tails every 1 s (4 tail solvers to compile on a fresh
-# machine), labels clipped at 300 (docs/closed_loop.md).
-_QUICK_CLOSED_LOOP: tuple[tuple[str, Any], ...] = (
-    ("closed-loop:cl_uniform_solves", 20),
-    ("closed-loop:cl_episodes", 10),
-    ("closed-loop:cl_tail_stride", 10),
-    ("closed-loop:value_cap", 300.0),
-)
+    Raises:
+        ValueError: the task has no preset of that name, or its fields are not a valid :class:`Preset`.
+    """
+    presets = task.profile.presets
+    if name not in presets:
+        raise ValueError(f"unknown preset {name!r} for task {task.name!r}; choose one of {sorted(presets)}")
+    values = {"mpc_horizon": task.profile.default_horizon(task), **presets[name]}
+    try:
+        return Preset(**values)
+    except TypeError as exc:
+        raise ValueError(f"task {task.name!r}: preset {name!r} is not a valid Preset ({exc})") from exc
 
-PRESETS: dict[str, dict[str, Preset]] = {
-    "acrobot": {
-        "smoke": Preset(
-            seeds=2,
-            budget=4,
-            solves_per_round=2,
-            train_steps_per_round=20,
-            grid_points=2,
-            reference_grid_points=1,
-            mpc_horizon=3,
-            budgets=(2, 4),
-            train_overrides=_SMOKE_OVERRIDES,
-            query_samples=2,
-            query_tail_stride=10,
-        ),
-        "quick": Preset(
-            # 4 seeds x budgets (20, 40, 60) x 10 x 10 grid had not finished after 16 min from a fresh clone with cold
-            # caches: every snapshot of every seed is a closed-loop evaluation. 3 seeds x 2 budgets x 8 x 8 is ~1/3.
-            seeds=3,
-            budget=60,
-            solves_per_round=10,
-            train_steps_per_round=500,
-            grid_points=8,
-            reference_grid_points=5,
-            mpc_horizon=5,
-            budgets=(30, 60),
-            train_overrides=_QUICK_CLOSED_LOOP,
-            query_samples=10,
-            query_tail_stride=10,
-        ),
-        "paper": Preset(
-            seeds=10,
-            budget=100,
-            solves_per_round=10,
-            train_steps_per_round=500,
-            grid_points=20,
-            reference_grid_points=10,
-            mpc_horizon=5,
-            budgets=(20, 50, 100),
-            query_samples=50,
-        ),
-    },
-    "glider": {
-        "smoke": Preset(
-            seeds=2,
-            budget=2,
-            solves_per_round=2,
-            train_steps_per_round=20,
-            grid_points=1,
-            reference_grid_points=1,
-            mpc_horizon=5,
-            budgets=(2,),
-            train_overrides=_SMOKE_OVERRIDES,
-            query_samples=2,
-            query_tail_stride=10,
-        ),
-        "quick": Preset(
-            seeds=3,
-            budget=40,
-            solves_per_round=10,
-            train_steps_per_round=500,
-            grid_points=4,
-            reference_grid_points=3,
-            mpc_horizon=10,
-            budgets=(10, 20, 40),
-            query_samples=20,
-        ),
-        "paper": Preset(
-            seeds=10,
-            budget=100,
-            solves_per_round=10,
-            train_steps_per_round=500,
-            grid_points=6,
-            reference_grid_points=4,
-            mpc_horizon=10,
-            budgets=(20, 50, 100),
-            query_samples=50,
-        ),
-    },
-}
+
+def __getattr__(name: str) -> Any:
+    """``PRESETS``: a deprecated name-keyed view (task -> preset name -> :class:`Preset`) of the built-in tasks'
+    ``profile.presets``."""
+    if name == "PRESETS":
+        import warnings
+
+        from seagul_envs.tasks import BUILTIN_TASKS
+
+        warnings.warn(
+            "seagul_learn.experiment.PRESETS is deprecated; the presets live on the task: task_preset(task, name)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        tasks = {n: make_task(n) for n in sorted(BUILTIN_TASKS)}
+        return {n: {p: task_preset(t, p) for p in t.profile.presets} for n, t in tasks.items()}
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 @dataclass
 class ExperimentConfig:
     """One ``seagul reproduce`` run."""
 
-    task: str = "acrobot"
-    """Task name."""
+    task: str | Task = "acrobot"
+    """A registered task name or a Task object (``seagul reproduce module:factory``); ``experiment.json`` stores its
+    name and fingerprint."""
     preset: str = "quick"
-    """``"quick"``, ``"paper"`` or ``"smoke"`` (see :data:`PRESETS`)."""
+    """``"quick"``, ``"paper"`` or ``"smoke"``: one of the task's ``profile.presets`` (:func:`task_preset`)."""
     seeds: int | None = None
     """Override of the preset's number of paired seeds."""
     workers: int = 1
@@ -307,10 +244,9 @@ class ExperimentConfig:
 
     def validate(self) -> None:
         """Raise a ValueError naming the first bad field."""
-        if self.task not in available_tasks():
-            raise ValueError(f"unknown task {self.task!r}; available tasks: {available_tasks()}")
-        if self.preset not in PRESETS[self.task]:
-            raise ValueError(f"unknown preset {self.preset!r}; choose one of {sorted(PRESETS[self.task])}")
+        task = self.resolve_task()
+        if self.preset not in task.profile.presets:
+            raise ValueError(f"unknown preset {self.preset!r}; choose one of {sorted(task.profile.presets)}")
         if self.seeds is not None and self.seeds < 1:
             raise ValueError(f"seeds must be >= 1, got {self.seeds}")
         if self.workers < 1:
@@ -320,9 +256,21 @@ class ExperimentConfig:
         if self.ppo_model is not None and not Path(self.ppo_model).exists():
             raise FileNotFoundError(f"PPO model {self.ppo_model!r} does not exist")
 
+    def resolve_task(self) -> Task:
+        """The Task of the run: the object given, or the registered name's shared task (ValueError if unknown)."""
+        if not isinstance(self.task, Task | str):
+            raise ValueError(f"task must be a registered task name or a seagul_envs Task, got {self.task!r}")
+        return resolve_task(self.task)
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict of the fields (the task by its name)."""
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        out["task"] = task_label(self.task)
+        return out
+
     def resolve(self) -> Preset:
         """The preset with this run's overrides."""
-        preset = PRESETS[self.task][self.preset]
+        preset = task_preset(self.resolve_task(), self.preset)
         if self.seeds is not None:
             preset = replace(preset, seeds=self.seeds)
         return preset
@@ -348,7 +296,7 @@ class Experiment:
         self.config = config
         self.out = Path(out)
         self.preset = config.resolve()
-        self.task = make_task(config.task)
+        self.task = config.resolve_task()
         self.state_path = self.out / "experiment.json"
         self.timings: dict[str, float] = {}
         if self.state_path.is_file():
@@ -362,7 +310,7 @@ class Experiment:
         config.validate()
         if out is None:
             stamp = datetime.now().strftime("%Y%m%d-%H%M%S")
-            out = Path("runs") / f"{config.task}-{stamp}"
+            out = Path("runs") / f"{task_label(config.task)}-{stamp}"
         out = Path(out)
         if (out / "experiment.json").exists():
             raise FileExistsError(f"{str(out)!r} already holds an experiment; use --resume {out} to continue it")
@@ -373,8 +321,19 @@ class Experiment:
         return experiment
 
     @classmethod
-    def resume(cls, out: Path, workers: int | None = None, progress: bool = True) -> Experiment:
-        """Reopen an interrupted run (its stored configuration wins; only ``workers``/``progress`` may change)."""
+    def resume(
+        cls, out: Path, workers: int | None = None, progress: bool = True, task: Task | str | None = None
+    ) -> Experiment:
+        """Reopen an interrupted run (its stored configuration wins; only ``workers``/``progress`` may change).
+
+        ``task``: the Task of a run made with a task object that is not registered (``module:factory``); it must
+        have the stored name and fingerprint. Without it the stored name is resolved with ``make_task``.
+
+        Raises:
+            FileNotFoundError: no experiment in ``out``.
+            ValueError: a damaged experiment file, another task (name or fingerprint), or an unregistered task
+                without ``task``.
+        """
         path = Path(out) / "experiment.json"
         if not path.is_file():
             raise FileNotFoundError(f"{str(out)!r} holds no seagul experiment (no experiment.json)")
@@ -383,6 +342,24 @@ class Experiment:
             config = ExperimentConfig(**stored["config"])
         except (ValueError, KeyError, TypeError) as exc:
             raise ValueError(f"{str(path)!r} is not a valid experiment file ({exc})") from exc
+        stored_name = str(config.task)
+        if task is not None:
+            if task_label(task) != stored_name:
+                raise ValueError(f"{str(out)!r} is a {stored_name} run, not {task_label(task)}")
+            config.task = task
+        elif stored_name not in available_tasks():
+            raise ValueError(
+                f"{str(out)!r} is a run of task {stored_name!r}, which is not registered in this process; give the "
+                f"task: seagul reproduce module:factory --resume {out} (or Experiment.resume(out, task=...))"
+            )
+        resolved = config.resolve_task()
+        fingerprint = stored.get("task_fingerprint")
+        if fingerprint is not None and fingerprint != resolved.fingerprint():
+            raise ValueError(
+                f"cannot resume {str(out)!r}: it was run on task {stored_name!r} with fingerprint {fingerprint}, and "
+                f"the task given now has fingerprint {resolved.fingerprint()} (same name, other content); resume with "
+                "the task the run was made with"
+            )
         if workers is not None:
             config.workers = workers
         config.progress = progress
@@ -391,7 +368,8 @@ class Experiment:
 
     def _save_state(self) -> None:
         payload = {
-            "config": asdict(self.config),
+            "config": self.config.to_dict(),
+            "task_fingerprint": self.task.fingerprint(),
             "settings": asdict(self.preset),
             "timings": self.timings,
         }
@@ -426,9 +404,14 @@ class Experiment:
         from seagul_learn.solving import solver_key, trajopt_batch_solver
         from seagul_learn.training import default_cache_dir, validation_dataset
 
-        solver = trajopt_batch_solver(self.task.name, workers=self.config.workers, backend=self.config.backend)
+        solver = trajopt_batch_solver(self.task, workers=self.config.workers, backend=self.config.backend)
         records = validation_dataset(
-            self.task, solver, solver_key(None), default_cache_dir(), self.config.workers, self.config.progress
+            self.task,
+            solver,
+            solver_key(None, self.task),
+            default_cache_dir(),
+            self.config.workers,
+            self.config.progress,
         )
         failures = sum(not r.success for r in records)
         atomic_write_text(
@@ -443,8 +426,6 @@ class Experiment:
         The closed-loop method's collecting MPC has the deployed horizon (``mpc_horizon``) unless the preset says
         otherwise; the other samplers ignore the ``cl_*`` fields.
         """
-        from dataclasses import fields
-
         from seagul_learn.training import TrainConfig
 
         p = self.preset
@@ -454,7 +435,7 @@ class Experiment:
         if unknown:
             raise ValueError(f"preset train_overrides / METHODS[{method!r}] name unknown TrainConfig fields {unknown}")
         base: dict[str, Any] = {
-            "task": self.task.name,
+            "task": self.task,
             "budget": p.budget,
             "solves_per_round": p.solves_per_round,
             "train_steps_per_round": p.train_steps_per_round,
@@ -586,7 +567,7 @@ class Experiment:
         if path.is_file():
             return [EpisodeResult(**row) for row in json.loads(path.read_text())]
         results = evaluate(
-            self.task.name,
+            self.task,
             [spec],
             starts,
             self.config.workers,
@@ -612,9 +593,9 @@ class Experiment:
         if stride > 1:
             queries = queries[[_tail_multiple(self.task, float(t), stride) for t in queries[:, -1]]]
         solver = CachedBatchSolver(
-            trajopt_batch_solver(self.task.name, workers=self.config.workers, backend=self.config.backend),
+            trajopt_batch_solver(self.task, workers=self.config.workers, backend=self.config.backend),
             self._solver_cache(),
-            solver_key(None),
+            solver_key(None, self.task),
         )
         network = ValueNetwork.load(policy.spec.path)
         # One sampling seed for every network: the sample is a function of the queries only.
@@ -633,19 +614,20 @@ class Experiment:
         from seagul_learn.report import summarize
 
         p = self.preset
-        glider = self.task.name == "glider"  # the glider's trajectories are plotted (paper Fig. 3 centre)
+        # Tasks with a trajectory figure (the glider, paper Fig. 3 centre) record the seed-0 paths.
+        paths_shown = self.task.profile.trajectory_plot is not None
         starts, grid = start_grid(self.task, p.grid_points)
         ref_starts, ref_grid = start_grid(self.task, p.reference_grid_points)
         learned = self.learned_policies()
         finals = [lp for lp in learned if lp.final]
         episodes: dict[str, list[Any]] = {}
         for lp in learned:
-            record = glider and lp.final and lp.seed == 0
+            record = paths_shown and lp.final and lp.seed == 0
             episodes[lp.spec.name] = self._episodes(lp.spec, starts, record, record_queries=lp.final)
         errors = {(lp.method, lp.seed): self._query_error(lp, episodes[lp.spec.name]) for lp in finals}
         main_specs, reference_specs = self.baseline_specs()
-        base_results = [r for spec in main_specs for r in self._episodes(spec, starts, glider)]
-        ref_results = [r for spec in reference_specs for r in self._episodes(spec, ref_starts, glider)]
+        base_results = [r for spec in main_specs for r in self._episodes(spec, starts, paths_shown)]
+        ref_results = [r for spec in reference_specs for r in self._episodes(spec, ref_starts, paths_shown)]
         # Every final network on the reference grid too, so its success compares with the full-horizon MPC's.
         ref_learned: dict[tuple[str, int], list[Any]] = {}
         for lp in finals:
@@ -658,7 +640,7 @@ class Experiment:
         shown_ref = ref_results + [r for lp in finals if lp.seed == 0 for r in ref_learned[(lp.method, lp.seed)]]
         main_paths = self._grid_outputs("main", main_results, shown, grid)
         ref_paths = self._grid_outputs("reference", reference_results, shown_ref, ref_grid)
-        rows = summarize(self.task.name, main_results) + summarize(self.task.name, reference_results)
+        rows = summarize(self.task, main_results) + summarize(self.task, reference_results)
 
         success = {lp: _success_rate(episodes[lp.spec.name]) for lp in learned}
         methods = {
@@ -708,11 +690,12 @@ class Experiment:
         )
         figures = [
             ("success_vs_solves.png", "Grid success vs solves per network: median and 25-75 % band over seeds"),
-            (str(main_paths["heatmap"].relative_to(self.out)), _heatmap_caption(self.task.name, grid)),
+            (str(main_paths["heatmap"].relative_to(self.out)), self.task.profile.heatmap_text(self.task, grid)),
             (str(ref_paths["heatmap"].relative_to(self.out)), "The same on the coarser reference grid (seed 0)"),
         ]
-        if "trajectories" in main_paths:
-            figures.append((str(main_paths["trajectories"].relative_to(self.out)), "Glider trajectories (Fig. 3)"))
+        figure = self.task.profile.trajectory_plot
+        if "trajectories" in main_paths and figure is not None:
+            figures.append((str(main_paths["trajectories"].relative_to(self.out)), figure.caption))
         report_policies = [lp.spec.name for lp in finals] + [r.policy for r in reference_results + base_results]
         return {
             "rows": rows,
@@ -727,8 +710,8 @@ class Experiment:
         from seagul_learn.report import plot_heatmaps, write_outputs
 
         out = self.out / "closed_loop" / name
-        paths = write_outputs(out, self.task.name, [replace(r, queries=[]) for r in results], None, {"grid": grid})
-        paths["heatmap"] = plot_heatmaps(self.task.name, shown, grid, out / "heatmap.png")
+        paths = write_outputs(out, self.task, [replace(r, queries=[]) for r in results], None, {"grid": grid})
+        paths["heatmap"] = plot_heatmaps(self.task, shown, grid, out / "heatmap.png")
         return paths
 
     # -------------------------------------------------------------------------------------------------- report
@@ -747,7 +730,7 @@ class Experiment:
                 "Summary",
                 [
                     learning_headline(learning, p.methods, p.budget, p.seeds),
-                    closed_loop_headline(self.task.name, methods, closed_loop["baselines"], p.seeds),
+                    closed_loop_headline(self.task, methods, closed_loop["baselines"], p.seeds),
                 ],
             ),
             Section(
@@ -784,7 +767,7 @@ class Experiment:
                     + (", PPO" if self.config.ppo_model else "")
                     + " and the full-horizon MPC (on a coarser reference grid: it solves the whole problem at every "
                     "step; every final network runs there too). Success: fraction of grid starts "
-                    f"({'||x(5 s) - x*|| < 0.05' if self.task.name == 'acrobot' else 'perched'}) at "
+                    f"({self.task.profile.describe_success(self.task)}) at "
                     f"{p.budget} solves per network, median and quartiles over {p.seeds} seeds. Query error: "
                     f"`|Vhat - V|` at {p.query_samples} of the final MPC's planned terminal states per seed, "
                     "re-solved as tail problems (median and p95 per seed, then the median over seeds).",
@@ -854,7 +837,7 @@ def _train_one(config: Any, out: Path, cache: Path, workers: int = 1, backend: s
 
     torch.set_num_threads(1)
     os.environ.setdefault("OMP_NUM_THREADS", "1")
-    key = solver_key(None)
+    key = solver_key(None, config.task)
     solver = CachedBatchSolver(trajopt_batch_solver(config.task, workers=workers, backend=backend), cache, key)
     config = replace(config, workers=workers, backend=backend)
     train(config, out, resume=(out / "config.json").is_file(), batch_solver=solver, solver_name=key)
@@ -1028,10 +1011,12 @@ def learning_headline(learning: Mapping[str, Any], methods: Sequence[str], budge
 
 
 def closed_loop_headline(
-    task_name: str, methods: Mapping[str, Mapping[str, Any]], baselines: Mapping[str, float], seeds: int
+    task: Task | str, methods: Mapping[str, Mapping[str, Any]], baselines: Mapping[str, float], seeds: int
 ) -> str:
-    """One paragraph: each method's closed-loop success (median over seeds with the range), query error, baselines."""
-    what = "reach the goal (||x(5 s) - x*|| < 0.05)" if task_name == "acrobot" else "perch"
+    """One paragraph: each method's closed-loop success (median over seeds with the range), query error, baselines
+    (what success means comes from the task's ``profile.success_phrase``)."""
+    task = resolve_task(task)
+    what = task.profile.success_phrase(task)
     rates = ", ".join(
         f"{s['policy']} **{_pct(s['success_median'])}** ({_pct(s['success_min'])}-{_pct(s['success_max'])})"
         for s in methods.values()
@@ -1074,16 +1059,6 @@ def paired_rows(methods: Mapping[str, Mapping[str, Any]]) -> list[list[Any]]:
             vs = methods[REFERENCE_METHOD]["policy"]
             rows.append([s["policy"], vs, f"{c['median_difference']:+.0%}", c["wins"], c["losses"], c["p_value"]])
     return rows
-
-
-def _heatmap_caption(task_name: str, grid: dict[str, Any]) -> str:
-    n1, n2 = grid["shape"]
-    if task_name == "acrobot":
-        return (
-            f"Final distance to the goal after 5 s over a {n1} x {n2} grid of (th1, th2) at zero velocity, seed-0 "
-            "networks (Fig. 2)"
-        )
-    return f"Trajectory cost over a {n1} x {n2} grid of (x, z) starts, seed-0 networks (Fig. 4)"
 
 
 def comparison_rows(learning: Mapping[str, Any], methods: Sequence[str]) -> list[list[Any]]:

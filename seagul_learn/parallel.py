@@ -359,6 +359,12 @@ def _solve_ray(
     results: list[SolveResult | None] = [None] * n
     queue = list(chunks)
     in_flight: dict[Any, tuple[int, np.ndarray]] = {}
+    # A module that load_task read from a file (``--task path/file.py:factory``) is on no Ray worker's path: its
+    # classes and functions in the task (e.g. the parameter dataclass) travel by value.
+    from seagul_envs.tasks import file_task_modules
+
+    for module in file_task_modules():
+        ray.cloudpickle.register_pickle_by_value(module)
     task_ref = ray.put(task)  # serialised once per call; Ray hands the actors the Task itself
 
     def submit(actor_i: int) -> None:

@@ -3,10 +3,11 @@
 Closed-loop evaluation tables and figures (the episodes themselves are run by :mod:`seagul_control.evaluation`,
 which returns plain :class:`~seagul_control.evaluation.EpisodeResult` data): :func:`summarize` (one row per policy)
 and :func:`write_outputs`, which writes ``results.json`` (every episode), ``summary.json`` / ``summary.csv`` (one row
-per policy), ``heatmap.png`` (:func:`plot_heatmaps`; acrobot: final distance over the ``(th1, th2)`` grid at zero
-velocity, like Fig. 2; glider: trajectory cost over the ``(x, z)`` grid, like Fig. 4) and, for the glider,
-``trajectories.png`` (:func:`plot_glider_trajectories`; x-z paths, Fig. 3 centre). matplotlib is imported only
-inside the figure functions (Agg backend, headless).
+per policy), ``heatmap.png`` (:func:`plot_heatmaps`; the task's ``profile.heatmap_metric``: acrobot final distance
+over the ``(th1, th2)`` grid at zero velocity, like Fig. 2; glider trajectory cost over the ``(x, z)`` grid, like
+Fig. 4) and, for a task with a ``profile.trajectory_plot`` (the glider), ``trajectories.png``
+(:func:`plot_trajectories`; x-z paths, Fig. 3 centre). Every function takes a Task or a registered task name.
+matplotlib is imported only inside the figure functions (Agg backend, headless).
 
 The report (Markdown with embedded figures, plus a self-contained HTML copy) is assembled from plain data (sections
 of text, tables as lists of rows, figure paths), so every stage of an experiment can add to it without knowing how
@@ -32,14 +33,24 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from seagul_control._io import atomic_write_text
+from seagul_envs.tasks import resolve_task
+from seagul_envs.tasks.base import Task
+from seagul_envs.tasks.profile import TrajectoryPlot
 
 if TYPE_CHECKING:
     from seagul_control.evaluation import EpisodeResult
 
+GLIDER_TRAJECTORY_PLOT = TrajectoryPlot(
+    axes=(0, 1), labels=("x (m)", "z (m)"), goal_label="perch", title="glider trajectories (o = perched, x = missed)"
+)
+"""The glider's x-z figure (:func:`plot_glider_trajectories`, paper Fig. 3 centre)."""
+
 
 # ------------------------------------------------------------------------------------------------ evaluation tables
-def summarize(task_name: str, results: Sequence[EpisodeResult]) -> list[dict[str, Any]]:
-    """One row per policy: success rate, mean distance and cost, solver step times and fallbacks."""
+def summarize(task: Task | str, results: Sequence[EpisodeResult]) -> list[dict[str, Any]]:
+    """One row per policy: success rate, mean distance and cost, solver step times and fallbacks (and the success
+    rate again under the task's ``profile.success_column``, e.g. the glider's ``perch_success_rate``)."""
+    column = resolve_task(task).profile.success_column
     rows = []
     for name in dict.fromkeys(r.policy for r in results):
         rs = [r for r in results if r.policy == name]
@@ -61,23 +72,25 @@ def summarize(task_name: str, results: Sequence[EpisodeResult]) -> list[dict[str
             "fallback_steps": int(sum(r.fallbacks for r in rs)),
             "steps": int(sum(r.steps for r in rs)),
         }
-        if task_name == "glider":
-            row["perch_success_rate"] = row["success_rate"]
+        if column:
+            row[column] = row["success_rate"]
         rows.append(row)
     return rows
 
 
 def write_outputs(
     out_dir: str | os.PathLike[str],
-    task_name: str,
+    task: Task | str,
     results: Sequence[EpisodeResult],
     grid: dict[str, Any] | None = None,
     extra: dict[str, Any] | None = None,
 ) -> dict[str, Path]:
     """Write the JSON/CSV tables and the PNG figures; returns their paths by name."""
+    task = resolve_task(task)
+    task_name = task.name
     out = Path(out_dir)
     out.mkdir(parents=True, exist_ok=True)
-    rows = summarize(task_name, results)
+    rows = summarize(task, results)
     paths = {
         "results": out / "results.json",
         "summary_json": out / "summary.json",
@@ -91,15 +104,19 @@ def write_outputs(
         writer.writeheader()
         writer.writerows(rows)
     if grid is not None:
-        paths["heatmap"] = plot_heatmaps(task_name, results, grid, out / "heatmap.png")
-    if task_name == "glider" and any(r.states for r in results):
-        paths["trajectories"] = plot_glider_trajectories(results, out / "trajectories.png")
+        paths["heatmap"] = plot_heatmaps(task, results, grid, out / "heatmap.png")
+    figure = task.profile.trajectory_plot
+    if figure is not None and any(r.states for r in results):
+        paths["trajectories"] = plot_trajectories(results, out / "trajectories.png", figure, task)
     return paths
 
 
 # ------------------------------------------------------------------------------------------------ evaluation figures
-def plot_heatmaps(task_name: str, results: Sequence[EpisodeResult], grid: dict[str, Any], path: Path) -> Path:
-    """One panel per policy: final distance (acrobot, log colour) or trajectory cost (glider) over the grid."""
+def plot_heatmaps(task: Task | str, results: Sequence[EpisodeResult], grid: dict[str, Any], path: Path) -> Path:
+    """One panel per policy: the task's ``profile.heatmap_metric`` over the grid, log colour (final distance for the
+    acrobot, trajectory cost for the glider)."""
+    task = resolve_task(task)
+    task_name = task.name
     import matplotlib
 
     matplotlib.use("Agg")
@@ -109,7 +126,7 @@ def plot_heatmaps(task_name: str, results: Sequence[EpisodeResult], grid: dict[s
     names = list(dict.fromkeys(r.policy for r in results))
     n1, n2 = grid["shape"]
     ax1, ax2 = (np.asarray(a) for a in grid["axes"])
-    metric = "final_distance" if task_name == "acrobot" else "cost"
+    metric = task.profile.heatmap_metric
     values = {name: np.full((n1, n2), np.nan) for name in names}
     success = {name: np.zeros((n1, n2), dtype=bool) for name in names}
     for r in results:
@@ -146,6 +163,18 @@ def plot_heatmaps(task_name: str, results: Sequence[EpisodeResult], grid: dict[s
 
 def plot_glider_trajectories(results: Sequence[EpisodeResult], path: Path, max_per_policy: int = 9) -> Path:
     """x-z paths of recorded glider episodes, one colour per policy; the perch at the origin (Fig. 3 centre)."""
+    return plot_trajectories(results, path, GLIDER_TRAJECTORY_PLOT, None, max_per_policy)
+
+
+def plot_trajectories(
+    results: Sequence[EpisodeResult],
+    path: Path,
+    figure: TrajectoryPlot,
+    task: Task | None = None,
+    max_per_policy: int = 9,
+) -> Path:
+    """Paths of recorded episodes in the plane of ``figure.axes``, one colour per policy, the goal marked (``o``:
+    success, ``x``: failure). Without ``task`` the goal is the origin and the axis labels must be given."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -154,17 +183,22 @@ def plot_glider_trajectories(results: Sequence[EpisodeResult], path: Path, max_p
     names = list(dict.fromkeys(r.policy for r in results))
     fig, ax = plt.subplots(figsize=(7, 3.6))
     colors = plt.rcParams["axes.prop_cycle"].by_key()["color"]
+    i, j = figure.axes
+    labels = figure.labels or (
+        (task.state_names[i], task.state_names[j]) if task is not None else (f"x[{i}]", f"x[{j}]")
+    )
+    goal = (float(task.goal[i]), float(task.goal[j])) if task is not None else (0.0, 0.0)
     for k, name in enumerate(names):
         recorded = [r for r in results if r.policy == name and r.states]
         picks = recorded[:: max(1, len(recorded) // max_per_policy)][:max_per_policy]
         for m, r in enumerate(picks):
             s = np.asarray(r.states)
-            ax.plot(s[:, 0], s[:, 1], color=colors[k % len(colors)], lw=1, alpha=0.8, label=name if m == 0 else None)
-            ax.plot(s[-1, 0], s[-1, 1], "o" if r.success else "x", color=colors[k % len(colors)], ms=4)
-    ax.plot([0], [0], marker="*", ms=12, color="k", label="perch")
-    ax.set_xlabel("x (m)")
-    ax.set_ylabel("z (m)")
-    ax.set_title("glider trajectories (o = perched, x = missed)")
+            ax.plot(s[:, i], s[:, j], color=colors[k % len(colors)], lw=1, alpha=0.8, label=name if m == 0 else None)
+            ax.plot(s[-1, i], s[-1, j], "o" if r.success else "x", color=colors[k % len(colors)], ms=4)
+    ax.plot([goal[0]], [goal[1]], marker="*", ms=12, color="k", label=figure.goal_label)
+    ax.set_xlabel(labels[0])
+    ax.set_ylabel(labels[1])
+    ax.set_title(figure.title)
     ax.legend(fontsize=8)
     ax.grid(alpha=0.3)
     fig.savefig(path, dpi=120, bbox_inches="tight")

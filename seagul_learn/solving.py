@@ -180,7 +180,8 @@ def solver_fingerprint(task: Task | str | None = None) -> str:
 
 @functools.cache
 def code_fingerprint() -> str:
-    """Short hash of the source of the modules that define a solve (optimizer, tail defaults, transcription, tasks).
+    """Short hash of the source of the modules that define a solve (optimizer, tail defaults, transcription, tasks,
+    task profiles).
 
     Computed once per process, from the files of the modules this process imported.
     """
@@ -188,6 +189,7 @@ def code_fingerprint() -> str:
     import seagul_envs.tasks.acrobot
     import seagul_envs.tasks.base
     import seagul_envs.tasks.glider
+    import seagul_envs.tasks.profile
     import seagul_learn.trajopt
 
     digest = hashlib.sha256()
@@ -198,6 +200,7 @@ def code_fingerprint() -> str:
         seagul_envs.tasks.base,
         seagul_envs.tasks.acrobot,
         seagul_envs.tasks.glider,
+        seagul_envs.tasks.profile,  # the solver defaults of a new task
     ):
         digest.update(Path(str(module.__file__)).read_bytes())
     return digest.hexdigest()[:12]

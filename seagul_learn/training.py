@@ -2,10 +2,11 @@
 
 One run, for a :class:`TrainConfig`:
 
-1. **Validation set** (docs/spec.md §3.6/§4.6), solved once and cached under ``cache_dir`` keyed by task and solver
-   settings: acrobot a 10 x 10 grid over ``(th1, th2)`` at zero velocity plus 100 uniform draws from X0; glider a
-   6 x 6 x 6 grid over ``(x, z, dx)`` (other states 0) plus 250 uniform draws; all at the nominal ``tau``. The random
-   part uses a fixed seed, so every training seed is validated on the same set.
+1. **Validation set** (docs/spec.md §3.6/§4.6): the task's ``task.profile.validation_spec(task)``, solved once and
+   cached under ``cache_dir`` keyed by the task's fingerprint and the solver settings: acrobot a 10 x 10 grid over
+   ``(th1, th2)`` at zero velocity plus 100 uniform draws from X0; glider a 6 x 6 x 6 grid over ``(x, z, dx)`` (other
+   states 0) plus 250 uniform draws; a new task by default a 10 x 10 grid over two coordinates plus 100 draws; all at
+   the nominal ``tau``. The random part uses a fixed seed, so every training seed is validated on the same set.
 2. **Pretraining** (paper §6): ``pretrain_solves`` uniform solves (a stream that depends only on the seed) set the
    network's standardisation (all their knots) and train it for ``pretrain_steps`` steps. The result depends on
    neither the sampler nor the Sobolev weight, so every variant of a seed starts from IDENTICAL parameters. The
@@ -54,13 +55,12 @@ import csv
 import functools
 import hashlib
 import io
-import itertools
 import json
 import math
 import os
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -70,7 +70,8 @@ from tqdm.auto import tqdm
 
 from seagul_control._io import atomic_write_bytes, atomic_write_text
 from seagul_control._io import cache_dir as seagul_cache_dir
-from seagul_envs import Task, available_tasks, make_task
+from seagul_envs import Task, available_tasks, resolve_task, validate_task
+from seagul_envs.tasks.profile import VALIDATION_SEED, ValidationSpec
 from seagul_learn.closed_loop import ClosedLoopOptions, ClosedLoopSampler
 from seagul_learn.dataset import (
     Dataset,
@@ -93,15 +94,16 @@ _STREAM_PRETRAIN_STARTS = 3
 _STREAM_PRETRAIN_BATCHES = 4
 _STREAM_ROUND_BATCHES = 5
 _STREAM_REFIT_BATCHES = 6
-_VALIDATION_SEED = 20210718  # one validation set for all training seeds
+_VALIDATION_SEED = VALIDATION_SEED  # one validation set for all training seeds (seagul_envs.tasks.profile)
 
 
 @dataclass
 class TrainConfig:
     """Everything that defines a training run (CleanRL style: one place, one line per field)."""
 
-    task: str = "acrobot"
-    """Task name (``seagul_envs.available_tasks()``)."""
+    task: str | Task = "acrobot"
+    """A registered task name (``seagul_envs.available_tasks()``) or a Task object (a custom task, or a variant of a
+    built-in one); ``config.json`` stores its name and fingerprint, and a resumed run must have the same task."""
     sampler: str = "adversarial"
     """``"uniform"`` (baseline), ``"adversarial"`` (paper Alg. 1) or ``"closed-loop"`` (the deployed MPC's queries,
     :mod:`seagul_learn.closed_loop`)."""
@@ -214,7 +216,14 @@ class TrainConfig:
 
     def validate_values(self) -> None:
         """Raise a ValueError naming the first bad field and its accepted range."""
-        if self.task not in available_tasks():
+        if isinstance(self.task, Task):
+            validate_task(self.task)
+        elif not isinstance(self.task, str):
+            raise ValueError(
+                f"task must be a registered task name ({available_tasks()}) or a seagul_envs Task, "
+                f"got {type(self.task).__name__}"
+            )
+        elif self.task not in available_tasks():
             raise ValueError(f"unknown task {self.task!r}; available tasks: {available_tasks()}")
         if self.sampler not in SAMPLERS:
             raise ValueError(f"unknown sampler {self.sampler!r}; choose one of {list(SAMPLERS)}")
@@ -285,56 +294,64 @@ class TrainConfig:
         """Rounds of solves (the last one may be partial)."""
         return math.ceil(self.budget / self.solves_per_round)
 
+    @property
+    def task_name(self) -> str:
+        """The task's name (of the Task object, or the registered name given)."""
+        return self.task.name if isinstance(self.task, Task) else str(self.task)
+
+    def resolve_task(self) -> Task:
+        """The Task of the run: the object given, or the registered name's shared task."""
+        return resolve_task(self.task)
+
     def to_dict(self) -> dict[str, Any]:
-        """JSON-ready dict of the fields."""
-        out = asdict(self)
+        """JSON-ready dict of the fields (a Task object as its name: ``TrainConfig(**d)`` needs it registered, or
+        :meth:`from_dict` with ``task=``)."""
+        out = {f.name: getattr(self, f.name) for f in fields(self)}
+        out["task"] = self.task_name
         out["hidden"] = list(self.hidden)
         out["snapshots"] = list(self.snapshots)
+        if self.solver_options is not None:
+            out["solver_options"] = dict(self.solver_options)
         return out
 
     @classmethod
-    def from_dict(cls, data: dict[str, Any]) -> TrainConfig:
-        """Inverse of :meth:`to_dict`; unknown keys are an error naming them."""
+    def from_dict(cls, data: dict[str, Any], task: Task | None = None) -> TrainConfig:
+        """Inverse of :meth:`to_dict`; unknown keys are an error naming them. ``task``: the Task object to use
+        for the stored name (a task that is not registered in this process); it must have that name."""
         known = {f.name for f in fields(cls)}
         unknown = sorted(set(data) - known)
         if unknown:
             raise ValueError(f"unknown TrainConfig fields {unknown}")
+        if task is not None:
+            if data.get("task") != task.name:
+                raise ValueError(f"the stored task is {data.get('task')!r}, not {task.name!r}")
+            data = {**data, "task": task}
         return cls(**data)
 
     def result_fields(self) -> dict[str, Any]:
-        """The fields that determine the results (everything but the runtime ones)."""
+        """The fields that determine the results (everything but the runtime ones; the task by its name, whose
+        content :func:`train` checks by fingerprint)."""
         return {k: v for k, v in self.to_dict().items() if k not in self.RUNTIME_FIELDS}
 
 
 # ----------------------------------------------------------------------------------------------- validation set
-@dataclass(frozen=True)
-class ValidationSpec:
-    """A validation set: a grid over some coordinates of X0 (others at their X0 centre) plus uniform draws."""
+# ``ValidationSpec`` lives in seagul_envs.tasks.profile (imported above, so ``seagul_learn.training.ValidationSpec``
+# still works): each task's validation set is ``task.profile.validation_spec(task)``, the built-ins' set in their
+# task modules (docs/spec.md §3.6, §4.6). ``VALIDATION_SPECS`` remains as a deprecated view of the built-in tasks'.
+def __getattr__(name: str) -> Any:
+    """``VALIDATION_SPECS``: a deprecated name-keyed view of the built-in tasks' validation sets."""
+    if name == "VALIDATION_SPECS":
+        import warnings
 
-    grid_coords: tuple[int, ...]
-    """State coordinates spanned by the grid."""
-    grid_points: int
-    """Points per grid coordinate (grid bounds are X0's)."""
-    num_random: int
-    """Uniform draws from X0 added to the grid."""
+        from seagul_envs.tasks import BUILTIN_TASKS, make_task
 
-    def starts(self, task: Task) -> np.ndarray:
-        """The start states (grid first, then the draws)."""
-        centre = 0.5 * (task.x0_low + task.x0_high)
-        axes = [np.linspace(task.x0_low[j], task.x0_high[j], self.grid_points) for j in self.grid_coords]
-        grid = np.tile(centre, (self.grid_points ** len(self.grid_coords), 1))
-        for row, point in enumerate(itertools.product(*axes)):
-            grid[row, list(self.grid_coords)] = point
-        draws = task.sample_x0(np.random.default_rng(_VALIDATION_SEED), self.num_random)
-        return np.vstack([grid, draws])
-
-
-VALIDATION_SPECS: dict[str, ValidationSpec] = {
-    # docs/spec.md §3.6: 10 x 10 over (th1, th2) at zero velocity (X0's velocity centre is 0) + 100 uniform 4-D draws.
-    "acrobot": ValidationSpec(grid_coords=(0, 1), grid_points=10, num_random=100),
-    # docs/spec.md §4.6: 6 x 6 x 6 over (x, z, dx), other states 0 + 250 uniform draws.
-    "glider": ValidationSpec(grid_coords=(0, 1, 4), grid_points=6, num_random=250),
-}
+        warnings.warn(
+            "seagul_learn.training.VALIDATION_SPECS is deprecated; use task.profile.validation_spec(task)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return {n: make_task(n).profile.validation_spec(make_task(n)) for n in sorted(BUILTIN_TASKS)}
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 def default_cache_dir() -> Path:
@@ -351,10 +368,15 @@ def validation_dataset(
     progress: bool = False,
     spec: ValidationSpec | None = None,
 ) -> list[SolveRecord]:
-    """Solve (or load from the cache) the task's validation set; returns one record per validation start."""
-    spec = spec or VALIDATION_SPECS[task.name]
+    """Solve (or load from the cache) the task's validation set; returns one record per validation start.
+
+    The set is ``spec`` or the task's (``task.profile.validation_spec(task)``). The cache entry is keyed by
+    ``solver_name`` (give ``solver_key(options, task)`` for the real solver), the spec, ``tau`` and the task's
+    fingerprint, so a variant of a task (one parameter changed, same name) gets a validation set of its own.
+    """
+    spec = spec or task.profile.validation_spec(task)
     starts = spec.starts(task)
-    meta = {"solver": solver_name, "spec": asdict(spec), "tau": task.tau_nominal}
+    meta = {"solver": solver_name, "spec": asdict(spec), "tau": task.tau_nominal, "task": task.fingerprint()}
     key = hashlib.sha256(json.dumps(meta, sort_keys=True).encode()).hexdigest()[:16]
     root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     dataset = Dataset.open(root / f"validation-{task.name}-{key}", task.name, meta=meta)
@@ -567,20 +589,25 @@ def train(
 ) -> TrainResult:
     """Run (or resume) SEAGuL training into ``out_dir``; see the module docstring.
 
-    ``batch_solver`` replaces the trajectory optimizer (tests inject a toy); ``solver_name`` then names it in the
-    validation-cache key. Outputs: ``config.json``, ``dataset/``, ``checkpoint.pt``, ``network.pt``,
-    ``metrics.json``, ``metrics.csv``, ``validation.png``.
+    ``config.task`` is a registered name or a Task object (resolved once, here; the object is what the solver's
+    workers get). ``batch_solver`` replaces the trajectory optimizer (tests inject a toy); ``solver_name`` then
+    names it in the validation-cache key. Outputs: ``config.json`` (with the task's name and fingerprint),
+    ``dataset/``, ``checkpoint.pt``, ``network.pt``, ``metrics.json``, ``metrics.csv``, ``validation.png``.
+
+    Raises:
+        ValueError: a bad configuration, or ``resume`` of a run made with another configuration or with a task of
+            another fingerprint (same name, other content).
     """
     config.validate_values()
     out = Path(out_dir)
-    task = make_task(config.task)
+    task = config.resolve_task()
     if batch_solver is None:
         batch_solver = trajopt_batch_solver(
-            config.task, workers=config.workers, backend=config.backend, solver_options=config.solver_options
+            task, workers=config.workers, backend=config.backend, solver_options=config.solver_options
         )
-        solver_name = solver_key(config.solver_options)
+        solver_name = solver_key(config.solver_options, task)
     solver_name = solver_name or "custom"
-    _prepare_run_dir(out, config, resume)
+    _prepare_run_dir(out, config, resume, task)
 
     previous_threads = torch.get_num_threads()
     torch.set_num_threads(config.torch_threads)
@@ -590,7 +617,11 @@ def train(
         torch.set_num_threads(previous_threads)
 
 
-def _prepare_run_dir(out: Path, config: TrainConfig, resume: bool) -> None:
+class _OtherTask(Exception):
+    """The stored run config names another task (raised and caught inside :func:`_prepare_run_dir`)."""
+
+
+def _prepare_run_dir(out: Path, config: TrainConfig, resume: bool, task: Task) -> None:
     config_path = out / "config.json"
     if out.exists() and not out.is_dir():
         raise FileExistsError(f"run directory {str(out)!r} is a file, not a directory; choose a directory for the run")
@@ -600,9 +631,25 @@ def _prepare_run_dir(out: Path, config: TrainConfig, resume: bool) -> None:
                 f"run directory {str(out)!r} already holds a run; pass resume=True (--resume) or choose a new one"
             )
         try:
-            stored = TrainConfig.from_dict(json.loads(config_path.read_text())).result_fields()
-        except (ValueError, TypeError) as exc:
+            data = json.loads(config_path.read_text())
+            stored_fingerprint = data.pop("task_fingerprint", None)
+            if data.get("task") != task.name:
+                raise _OtherTask(data.get("task"))
+            stored = TrainConfig.from_dict(data, task=task).result_fields()
+        except _OtherTask as other:
+            raise ValueError(
+                f"cannot resume {str(out)!r} with a different configuration (task: stored {other.args[0]!r} vs "
+                f"{task.name!r})"
+            ) from None
+        except (ValueError, TypeError, AttributeError) as exc:
             raise ValueError(f"cannot resume: {str(config_path)!r} is not a valid run config ({exc})") from exc
+        if stored_fingerprint is not None and stored_fingerprint != task.fingerprint():
+            raise ValueError(
+                f"cannot resume {str(out)!r}: it was trained on task {task.name!r} with fingerprint "
+                f"{stored_fingerprint}, and the task given now has fingerprint {task.fingerprint()} (same name, other "
+                "content: a parameter, bound, cost or setting differs); resume with the task the run was made with, "
+                "or start a new run directory"
+            )
         wanted = config.result_fields()
         diff = sorted(k for k in wanted if json.dumps(wanted[k]) != json.dumps(stored.get(k)))
         if diff:
@@ -611,7 +658,8 @@ def _prepare_run_dir(out: Path, config: TrainConfig, resume: bool) -> None:
     elif out.exists() and any(p.name != ".gitkeep" for p in out.iterdir()):
         raise FileExistsError(f"run directory {str(out)!r} exists and is not a seagul run; choose a new one")
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(config_path, json.dumps(config.to_dict(), indent=2, sort_keys=True))
+    payload = {**config.to_dict(), "task_fingerprint": task.fingerprint()}
+    atomic_write_text(config_path, json.dumps(payload, indent=2, sort_keys=True))
 
 
 def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver, solver_name: str) -> TrainResult:
@@ -657,7 +705,7 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
         buffer = _concat(buffer, new)
     else:
         network.set_normalization(buffer.x, buffer.tau, buffer.value)
-        pre_cfg = TrainConfig(**{**config.to_dict(), "sobolev_weight": 0.0, "newest_fraction": 0.0})
+        pre_cfg = replace(config, sobolev_weight=0.0, newest_fraction=0.0)
         _Trainer(pre_cfg, network, None).train(
             buffer,
             np.zeros(0, dtype=np.int64),
@@ -792,7 +840,7 @@ def _write_metrics(
     writer.writeheader()
     writer.writerows(rows)
     atomic_write_text(out / "metrics.csv", text.getvalue())
-    plot_metrics(metrics, out / "validation.png", title=f"{config.task}: {config.sampler} (seed {config.seed})")
+    plot_metrics(metrics, out / "validation.png", title=f"{config.task_name}: {config.sampler} (seed {config.seed})")
 
 
 def plot_metrics(metrics: list[Metric], path: str | os.PathLike[str], title: str = "") -> None:

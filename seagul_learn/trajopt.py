@@ -7,8 +7,9 @@
 
 Robustness: a deterministic sequence of attempts (solver and initial guess) is tried until one succeeds, so the label
 of a start depends only on ``(x_init, tau)`` and the configuration, never on what was solved before (batch and
-parallel solving stay reproducible). The default plans (:data:`TASK_DEFAULTS`) start with the fastest solver from
-a straight-line guess and end with IPOPT from "the goal everywhere"; see :class:`TrajOptConfig` and docs/trajopt.md.
+parallel solving stay reproducible). The default plans (each task's ``task.profile.solver``) start with the fastest
+solver from a straight-line guess and end with IPOPT from "the goal everywhere"; see :class:`TrajOptConfig` and
+docs/trajopt.md.
 
 ``grad_tau`` of a fixed-step task (the acrobot, ``h = tau / m``) is the sensitivity of ``V`` to stretching every
 step; it is not the derivative of a free-final-time value and the acrobot's ``T0`` is a single value anyway.
@@ -40,31 +41,29 @@ GuessName = Literal["line", "goal", "hold", "kinematic"]
 
 GUESS_NAMES: tuple[str, ...] = ("line", "goal", "hold", "kinematic")
 
-#: (position, velocity) state index pairs used by the ``"kinematic"`` guess.
-KINEMATIC_PAIRS: dict[str, tuple[tuple[int, int], ...]] = {"glider": ((0, 4), (1, 5))}
+# The per-task defaults (attempt plan, multi-start, kinematic pairs) live on the task: ``task.profile.solver``
+# (:class:`~seagul_envs.tasks.profile.SolverDefaults`; the acrobot's and the glider's, with their measurements, in
+# their task modules). ``TASK_DEFAULTS`` and ``KINEMATIC_PAIRS`` remain as deprecated views of the built-in tasks'.
+_DEPRECATED_VIEWS = ("TASK_DEFAULTS", "KINEMATIC_PAIRS")
 
-#: Per-task defaults of the fields left at None in :class:`TrajOptConfig` (measured choices, docs/trajopt.md).
-#: ``plan``: the attempts ``"solver:guess"`` tried in order until one succeeds (measured, docs/trajopt.md):
-#: fatrop is the fastest per iteration but fails ~10% of acrobot starts (no restoration on its line-search failures);
-#: ``ipopt_fast`` (IPOPT accepting every trial step) converges in ~15 (acrobot) / ~40 (glider) iterations where the
-#: filter line search needs ~15 / ~140; the careful IPOPT with two guesses comes last.
-#: Acrobot multi-start: over 300 uniform starts 6 labels (2%) were poor local optima (34-129, while IPOPT from "the
-#: goal everywhere" found 16-35) and only one good label exceeded 30 (30.007; the 95th percentile is 24), so values
-#: above 30 trigger a re-solve; it recovered all 6.
-TASK_DEFAULTS: dict[str, dict[str, Any]] = {
-    "acrobot": {
-        "plan": ("fatrop:line", "ipopt_fast:line", "ipopt:line", "ipopt:goal"),
-        "multi_start": "on_suspect",
-        "multi_start_guesses": ("line", "goal"),
-        "suspect_value": 30.0,
-    },
-    "glider": {
-        "plan": ("ipopt_fast:kinematic", "fatrop:kinematic", "ipopt:kinematic", "ipopt:line", "ipopt:goal"),
-        "multi_start": "never",
-    },
-}
-_GENERIC_DEFAULTS: dict[str, Any] = {"multi_start": "never"}
-_FALLBACK_DEFAULTS: dict[str, Any] = {"multi_start_guesses": ("goal",), "suspect_value": float("inf")}
+
+def __getattr__(name: str) -> Any:
+    """``TASK_DEFAULTS`` / ``KINEMATIC_PAIRS``: deprecated name-keyed views of the built-in tasks' profiles."""
+    if name in _DEPRECATED_VIEWS:
+        import warnings
+
+        warnings.warn(
+            f"seagul_learn.trajopt.{name} is deprecated; the defaults live on the task: task.profile.solver",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        from seagul_envs.tasks import BUILTIN_TASKS
+
+        tasks = {n: make_task(n) for n in sorted(BUILTIN_TASKS)}
+        if name == "TASK_DEFAULTS":
+            return {n: t.profile.solver.config_defaults() for n, t in tasks.items()}
+        return {n: t.profile.solver.kinematic_pairs for n, t in tasks.items() if t.profile.solver.kinematic_pairs}
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
 
 
 @dataclass(frozen=True)
@@ -73,7 +72,7 @@ class TrajOptConfig:
 
     plan: tuple[str, ...] | None = None
     """Attempts ``"solver:guess"`` tried in order until one succeeds. None: derived from ``solver``,
-    ``fallback_solver`` and ``guesses`` if any of them is set, else the task's default (:data:`TASK_DEFAULTS`).
+    ``fallback_solver`` and ``guesses`` if any of them is set, else the task's default (``task.profile.solver``).
     Solvers: ``"ipopt"``, ``"fatrop"``, ``"ipopt_fast"`` (IPOPT with ``accept_every_trial_step``, capped at
     :data:`FAST_IPOPT_MAX_ITER` iterations)."""
     solver: SolverName | None = None
@@ -84,12 +83,12 @@ class TrajOptConfig:
     """Initial guesses of a derived plan: the first with ``solver``, all with ``fallback_solver`` (default
     ``("line", "goal")``). Names: ``"line"`` straight line from ``x_init`` to the goal, ``"goal"`` the goal at
     every knot, ``"hold"`` ``x_init`` at every knot, ``"kinematic"`` the line with each (position, velocity) pair of
-    :data:`KINEMATIC_PAIRS` made consistent (velocity linear from the start's so that the position reaches the
-    goal's at ``tau``). Inputs start at zero, steps at ``tau / m``."""
+    ``task.profile.solver.kinematic_pairs`` made consistent (velocity linear from the start's so that the position
+    reaches the goal's at ``tau``). Inputs start at zero, steps at ``tau / m``."""
     multi_start: Literal["never", "on_suspect", "always"] | None = None
     """Also solve from every guess in ``multi_start_guesses`` (with the fallback solver) and keep the lowest value:
     ``"always"``; ``"on_suspect"`` when the first successful value exceeds ``suspect_value`` (a cheap guard against
-    poor local optima, docs/trajopt.md); ``"never"``. None: the task's default (:data:`TASK_DEFAULTS`)."""
+    poor local optima, docs/trajopt.md); ``"never"``. None: the task's default (``task.profile.solver``)."""
     multi_start_guesses: tuple[str, ...] | None = None
     """Extra guesses of the multi-start (None: the task's default)."""
     suspect_value: float | None = None
@@ -128,9 +127,11 @@ class TrajOptConfig:
             changes["multi_start_guesses"] = tuple(changes["multi_start_guesses"])
         return dataclasses.replace(self, **changes)
 
-    def resolved(self, task_name: str) -> TrajOptConfig:
-        """A copy with the None fields filled from the task's defaults."""
-        defaults = {**_FALLBACK_DEFAULTS, **TASK_DEFAULTS.get(task_name, _GENERIC_DEFAULTS)}
+    def resolved(self, task: Task | str) -> TrajOptConfig:
+        """A copy with the None fields filled from the task's defaults (``task.profile.solver``; a name is resolved
+        with ``make_task``)."""
+        task = make_task(task) if isinstance(task, str) else task
+        defaults = task.profile.solver.config_defaults()
         if self.solver is not None or self.guesses is not None:
             defaults.pop("plan", None)
         changes = {k: v for k, v in defaults.items() if getattr(self, k) is None}
@@ -197,7 +198,7 @@ class TrajectoryOptimizer:
         if options:
             cfg = cfg.with_updates(**options)
         cfg.validate()
-        cfg = cfg.resolved(self.task.name)
+        cfg = cfg.resolved(self.task)
         self.config = cfg
         self.horizon = self.task.num_steps if cfg.horizon is None else int(cfg.horizon)
         self._transcriptions: dict[str, Transcription] = {}
@@ -262,7 +263,7 @@ class TrajectoryOptimizer:
         m = tr.horizon
         s = np.linspace(0.0, 1.0, m + 1)[:, None]
         states = (1 - s) * x_init + s * self.task.goal
-        for ip, iv in KINEMATIC_PAIRS.get(self.task.name, ()):
+        for ip, iv in self.task.profile.solver.kinematic_pairs:
             # Velocity linear in time from the start's; its mean covers the distance to the goal in tau.
             v0 = x_init[iv]
             v1 = 2 * (self.task.goal[ip] - x_init[ip]) / tau - v0

@@ -12,7 +12,7 @@ from toy_problem import ToySolver
 
 import seagul_learn.solving
 import seagul_learn.training
-from seagul_envs import make_task
+from seagul_envs import resolve_task
 from seagul_learn.cli import Command, discover_commands, main
 from seagul_learn.dataset import Dataset
 from seagul_learn.value_network import ValueNetwork
@@ -69,9 +69,10 @@ def toy_solver(monkeypatch):
     """Replace the trajectory optimizer by the toy for the CLI (the plumbing is what is tested here)."""
     toys: dict[str, ToySolver] = {}
 
-    def fake(task_name, **kwargs):
-        toys.setdefault(task_name, ToySolver(make_task(task_name)))
-        return toys[task_name]
+    def fake(task, **kwargs):  # the commands pass the Task object (resolved once), or a name
+        task = resolve_task(task)
+        toys.setdefault(task.name, ToySolver(task))
+        return toys[task.name]
 
     monkeypatch.setattr(seagul_learn.training, "trajopt_batch_solver", fake)
     monkeypatch.setattr(seagul_learn.solving, "trajopt_batch_solver", fake)

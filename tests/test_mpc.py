@@ -208,10 +208,11 @@ def test_terminal_cost_equals_the_value_network_it_wraps():
         net.layers[-1].bias.fill_(3.0)  # keep V > 0 so the clamp is inactive on most points
     box = (task.goal - 1.0, task.goal + 1.0)
     mpc = LimitedLookaheadMPC(
-        task, net, 5, trust_region="box", trust_box=box, trust_weight=7.0, anchor_goal=False, **FAST
+        task, net, 5, trust_region="box", trust_box=box, trust_weight=7.0, anchor_goal=False, goal_blend=0.0, **FAST
     )
-    prior = LimitedLookaheadMPC(task, net, 5, trust_region="lqr", clamp=False, anchor_goal=False, **FAST)
-    plain = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, anchor_goal=False, **FAST)
+    raw = {"clamp": False, "anchor_goal": False, "goal_blend": 0.0}
+    prior = LimitedLookaheadMPC(task, net, 5, trust_region="lqr", **raw, **FAST)
+    plain = LimitedLookaheadMPC(task, net, 5, trust_region="none", **raw, **FAST)
     for x, tau in zip(task.sample_x0(rng, 5), rng.uniform(0.5, 4.5, 5), strict=True):
         expected = float(net.predict(x[None], tau)[0])
         assert plain.terminal_cost_value(x, tau) == pytest.approx(expected, rel=1e-10, abs=1e-10)
@@ -304,7 +305,7 @@ def test_goal_anchoring_removes_the_networks_value_and_slope_at_the_goal():
 
     task = make_task("acrobot")
     net = ValueNetwork(4, (32,), task_name="acrobot", seed=3)
-    anchored = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, **FAST)
+    anchored = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, goal_blend=0.0, **FAST)
     assert anchored.anchor_goal  # default for a zero-cost equilibrium goal
     raw = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, anchor_goal=False, **FAST)
     g = task.goal
@@ -329,7 +330,7 @@ def test_goal_blend_is_l_f_at_the_goal_and_the_network_far_away():
 
     task = make_task("acrobot")
     net = ValueNetwork(4, (32,), task_name="acrobot", seed=3)
-    plain = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, **FAST)
+    plain = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, goal_blend=0.0, **FAST)
     blended = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, goal_blend=0.5, **FAST)
     g = task.goal
     for d in (np.zeros(4), np.array([0.01, -0.02, 0.05, 0.0]), np.array([0.3, 0.2, -0.5, 1.0]), np.full(4, 3.0)):
@@ -340,7 +341,8 @@ def test_goal_blend_is_l_f_at_the_goal_and_the_network_far_away():
         assert blended.terminal_cost_value(x, 2.0) == pytest.approx(expected, rel=1e-10, abs=1e-12)
     far = g + np.full(4, 3.0)
     assert blended.terminal_cost_value(far, 2.0) == pytest.approx(plain.terminal_cost_value(far, 2.0), rel=1e-6)
-    assert LimitedLookaheadMPC(task, net, 5, **FAST).goal_blend == 0.0
+    assert LimitedLookaheadMPC(task, net, 5, **FAST).goal_blend == 1.0  # the acrobot's profile
+    assert LimitedLookaheadMPC(make_task("glider"), None, 10, **FAST).goal_blend == 0.0
     with pytest.raises(ValueError, match="goal_blend must be a finite number >= 0"):
         LimitedLookaheadMPC(task, net, 5, goal_blend=-1.0, **FAST)
     with pytest.raises(ValueError, match="goal_blend needs a goal that is a zero-cost equilibrium"):

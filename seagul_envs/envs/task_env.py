@@ -147,7 +147,7 @@ def make_env(task: Task | str, **kwargs: Any) -> gym.Env:
         raise TypeError(f"make_env needs a seagul_envs Task or a task name, got {type(task).__name__}")
     cls = env_class_for(task)
     if cls is not TaskEnv:
-        env_id = BUILTIN_ENVS[task.name][0]
+        env_id = task.profile.env_id or BUILTIN_ENVS[task.name][0]
         return gym.make(env_id, **kwargs) if task is shared_task(task.name) else gym.make(env_id, task=task, **kwargs)
     validate_task(task)
     from seagul_envs.registration import TASK_ENV_IDS, task_env_id

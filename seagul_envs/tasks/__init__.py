@@ -7,12 +7,26 @@ task once per process and shares the object (the simulators and solvers cache th
 
 from __future__ import annotations
 
+import importlib
+import importlib.util
+import os
+import sys
 import threading
 from collections.abc import Callable
+from pathlib import Path
+from types import ModuleType
 
 from seagul_envs.tasks.acrobot import AcrobotParams, make_acrobot_task
 from seagul_envs.tasks.base import Task, rk4_map, validate_task
 from seagul_envs.tasks.glider import GliderParams, make_glider_task
+from seagul_envs.tasks.profile import (
+    EvaluationGrid,
+    SolverDefaults,
+    SuccessRule,
+    TaskProfile,
+    TrajectoryPlot,
+    ValidationSpec,
+)
 
 TASK_FACTORIES: dict[str, Callable[[], Task]] = {
     "acrobot": make_acrobot_task,
@@ -24,6 +38,7 @@ BUILTIN_TASKS: frozenset[str] = frozenset(TASK_FACTORIES)
 """The tasks that ship with seagul (their names cannot be re-registered)."""
 
 _TASKS: dict[str, Task] = {}  # the shared object of each name built so far
+_FILE_MODULES: dict[str, ModuleType] = {}  # modules load_task loaded from a file path, by module name
 _LOCK = threading.RLock()  # reentrant: a factory may itself call make_task
 
 
@@ -70,6 +85,109 @@ def resolve_task(task: Task | str) -> Task:
         f"expected a seagul_envs Task or a registered task name (one of {available_tasks()}), "
         f"got {type(task).__name__}: {_short_repr(task)}"
     )
+
+
+def load_task(spec: str) -> Task:
+    """The task that a command-line ``--task`` value names: a registered name, or ``module:factory``.
+
+    * ``"acrobot"`` (any name :func:`available_tasks` lists): ``make_task(name)``.
+    * ``"my_package.my_tasks:make_cartpole"``: imports the module (the current directory is put on ``sys.path``
+      first, as ``python -m`` would) and calls ``make_cartpole()``, which must return a :class:`Task`;
+      ``"path/to/file.py:make_cartpole"`` loads the file instead (its directory joins ``sys.path``, so worker
+      processes can import it too). The attribute may also be a Task itself. The factory is called once; the Task
+      object then travels (pickled to workers), its name need not be registered.
+
+    Raises:
+        ValueError: an unknown name; a module that cannot be imported (or raised while importing); a missing
+            attribute; a factory that raised, or returned something that is not a Task; a malformed Task. Each
+            message names the problem and the value given.
+    """
+    if not isinstance(spec, str) or not spec.strip():
+        raise ValueError(f"expected a task name ({', '.join(available_tasks())}) or module:factory, got {spec!r}")
+    module_name, sep, attr = spec.rpartition(":")
+    if not sep:
+        return make_task(spec)
+    if not module_name or not attr:
+        raise ValueError(f"task {spec!r}: write module:factory (e.g. examples.custom_system:make_cartpole)")
+    module = _import_task_module(spec, module_name)
+    target: object = module
+    for part in attr.split("."):
+        if not hasattr(target, part):
+            raise ValueError(f"task {spec!r}: module {module.__name__!r} has no attribute {attr!r}")
+        target = getattr(target, part)
+    if isinstance(target, Task):
+        return validate_task(target)
+    if not callable(target):
+        raise ValueError(
+            f"task {spec!r}: {attr!r} is a {type(target).__name__}, not a factory (a callable returning a Task)"
+        )
+    try:
+        task = target()
+    except Exception as e:
+        raise ValueError(f"task {spec!r}: the factory {attr}() raised {type(e).__name__}: {e}") from e
+    if not isinstance(task, Task):
+        raise ValueError(
+            f"task {spec!r}: the factory {attr}() returned a {type(task).__name__}, not a seagul_envs Task"
+        )
+    return validate_task(task)
+
+
+def _import_task_module(spec: str, module_name: str) -> ModuleType:
+    """The module of a ``module:factory`` task spec (a dotted module name or a ``.py`` file path)."""
+    path = Path(module_name)
+    if module_name.endswith(".py") or os.sep in module_name or "/" in module_name:
+        if not path.is_file():
+            raise ValueError(f"task {spec!r}: no Python file {module_name!r}")
+        folder = str(path.resolve().parent)
+        if folder not in sys.path:
+            sys.path.insert(0, folder)
+        name = path.stem
+        if name in sys.modules and getattr(sys.modules[name], "__file__", None) == str(path.resolve()):
+            with _LOCK:
+                _FILE_MODULES.setdefault(name, sys.modules[name])
+            return sys.modules[name]
+        loader_spec = importlib.util.spec_from_file_location(name, path.resolve())
+        if loader_spec is None or loader_spec.loader is None:
+            raise ValueError(f"task {spec!r}: cannot load {module_name!r} as a Python module")
+        module = importlib.util.module_from_spec(loader_spec)
+        sys.modules[name] = module
+        try:
+            loader_spec.loader.exec_module(module)
+        except Exception as e:
+            sys.modules.pop(name, None)
+            raise ValueError(f"task {spec!r}: loading {module_name!r} raised {type(e).__name__}: {e}") from e
+        with _LOCK:
+            _FILE_MODULES[name] = module
+        return module
+    cwd = os.getcwd()
+    if cwd not in sys.path and "" not in sys.path:
+        sys.path.insert(0, cwd)
+    try:
+        return importlib.import_module(module_name)
+    except ModuleNotFoundError as e:
+        if e.name is not None and (module_name == e.name or module_name.startswith(e.name + ".")):
+            raise ValueError(
+                f"task {spec!r}: no module named {module_name!r} (run from the directory that contains it, put it "
+                "on PYTHONPATH, or give the file: path/to/file.py:factory)"
+            ) from None
+        raise ValueError(f"task {spec!r}: importing {module_name!r} failed: {e}") from e
+    except Exception as e:
+        raise ValueError(f"task {spec!r}: importing {module_name!r} raised {type(e).__name__}: {e}") from e
+
+
+def file_task_modules() -> tuple[ModuleType, ...]:
+    """The modules :func:`load_task` loaded from a file path in this process.
+
+    Local worker processes inherit ``sys.path`` (the file's directory is on it) and import them by name; Ray workers
+    do not, so the Ray backend has its pickler send the classes and functions of these modules by value.
+    """
+    with _LOCK:
+        return tuple(_FILE_MODULES.values())
+
+
+def task_label(task: Task | str) -> str:
+    """The name of a Task or a task name (for messages, file names and tables)."""
+    return task.name if isinstance(task, Task) else str(task)
 
 
 def build_task(name: str, factory: Callable[[], Task]) -> Task:
@@ -138,13 +256,22 @@ __all__ = [
     "BUILTIN_TASKS",
     "TASK_FACTORIES",
     "AcrobotParams",
+    "EvaluationGrid",
     "GliderParams",
+    "SolverDefaults",
+    "SuccessRule",
     "Task",
+    "TaskProfile",
+    "TrajectoryPlot",
+    "ValidationSpec",
     "available_tasks",
     "build_task",
+    "file_task_modules",
+    "load_task",
     "make_task",
     "resolve_task",
     "rk4_map",
     "shared_task",
+    "task_label",
     "validate_task",
 ]

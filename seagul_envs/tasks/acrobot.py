@@ -26,6 +26,94 @@ import numpy as np
 import scipy.linalg
 
 from seagul_envs.tasks.base import Task, rk4_map
+from seagul_envs.tasks.profile import (
+    DEFAULT_PRESETS,
+    EvaluationGrid,
+    SolverDefaults,
+    SuccessRule,
+    TaskProfile,
+    ValidationSpec,
+)
+
+SUCCESS_DISTANCE = 0.05
+"""Success: ``||x(T) - x*||_2 < 0.05`` at the end of an episode (docs/spec.md §3.6)."""
+
+SOLVER_DEFAULTS = SolverDefaults(
+    plan=("fatrop:line", "ipopt_fast:line", "ipopt:line", "ipopt:goal"),
+    multi_start="on_suspect",
+    multi_start_guesses=("line", "goal"),
+    suspect_value=30.0,
+)
+"""The acrobot's attempt plan (measured, docs/trajopt.md): fatrop is the fastest per iteration but fails ~10 % of
+starts (no restoration on its line-search failures); ``ipopt_fast`` (IPOPT accepting every trial step) converges in
+~15 iterations; the careful IPOPT with two guesses comes last. Multi-start: over 300 uniform starts 6 labels (2 %)
+were poor local optima (34-129, while IPOPT from "the goal everywhere" found 16-35) and only one good label exceeded
+30 (30.007; the 95th percentile is 24), so values above 30 trigger a re-solve; it recovered all 6."""
+
+# Quick: the closed-loop method starts its loop after 20 uniform solves (a 10-solve network's planner queries are
+# states with values of 1e4 and more), 10 episodes a round, tails every 1 s (4 tail solvers to compile on a fresh
+# machine), labels clipped at 300 (docs/closed_loop.md).
+_QUICK_CLOSED_LOOP: tuple[tuple[str, object], ...] = (
+    ("closed-loop:cl_uniform_solves", 20),
+    ("closed-loop:cl_episodes", 10),
+    ("closed-loop:cl_tail_stride", 10),
+    ("closed-loop:value_cap", 300.0),
+)
+
+PRESETS: dict[str, dict[str, object]] = {
+    "smoke": dict(DEFAULT_PRESETS["smoke"]),  # the generic smoke preset
+    "quick": {
+        # 4 seeds x budgets (20, 40, 60) x 10 x 10 grid had not finished after 16 min from a fresh clone with cold
+        # caches: every snapshot of every seed is a closed-loop evaluation. 3 seeds x 2 budgets x 8 x 8 is ~1/3.
+        "seeds": 3,
+        "budget": 60,
+        "solves_per_round": 10,
+        "train_steps_per_round": 500,
+        "grid_points": 8,
+        "reference_grid_points": 5,
+        "mpc_horizon": 5,
+        "budgets": (30, 60),
+        "train_overrides": _QUICK_CLOSED_LOOP,
+        "query_samples": 10,
+        "query_tail_stride": 10,
+    },
+    "paper": {
+        "seeds": 10,
+        "budget": 100,
+        "solves_per_round": 10,
+        "train_steps_per_round": 500,
+        "grid_points": 20,
+        "reference_grid_points": 10,
+        "mpc_horizon": 5,
+        "budgets": (20, 50, 100),
+        "query_samples": 50,
+    },
+}
+"""``seagul reproduce acrobot`` presets (:class:`~seagul_learn.experiment.Preset` fields; paper §6 for ``paper``)."""
+
+
+def acrobot_profile(p: AcrobotParams) -> TaskProfile:
+    """The acrobot's :class:`TaskProfile` (docs/spec.md §3.6): validation set, success, LQR weights, presets, ..."""
+    return TaskProfile(
+        solver=SOLVER_DEFAULTS,
+        # 10 x 10 over (th1, th2) at zero velocity (X0's velocity centre is 0) + 100 uniform 4-D draws.
+        validation=ValidationSpec(grid_coords=(0, 1), grid_points=10, num_random=100),
+        # The acrobot has no state bounds (an episode never terminates), so termination is not looked at.
+        success=SuccessRule(distance=SUCCESS_DISTANCE, fail_on_termination=False),
+        success_text=f"||x({p.tau:g} s) - x*|| < {SUCCESS_DISTANCE:g}",
+        lqr_Q=np.diag(p.Q),
+        lqr_R=np.array([[p.R]]),
+        presets=PRESETS,
+        env_id="SeagulAcrobot-v0",
+        mpc_horizon=5,  # paper §6: 5 steps (0.5 s)
+        mpc_goal_blend=1.0,  # V = l_f measured while l_f <~ 1 (docs/closed_loop.md); 11 % -> 74 % unguarded
+        grid=EvaluationGrid(coords=(0, 1), fixed=((2, 0.0), (3, 0.0)), points=20),  # Fig. 2: (th1, th2), at rest
+        heatmap_metric="final_distance",
+        heatmap_caption=(
+            f"Final distance to the goal after {p.tau:g} s over a {{n1}} x {{n2}} grid of ({{dims}}) at zero velocity, "
+            "seed-0 networks (Fig. 2)"
+        ),
+    )
 
 
 @dataclass(frozen=True)
@@ -153,6 +241,7 @@ def make_acrobot_task(params: AcrobotParams | None = None) -> Task:
             "mass_matrix": ca.Function("acrobot_M", [qs], [acrobot_mass_matrix(qs, p)]),
             "bias": ca.Function("acrobot_bias", [qs, dqs], [acrobot_bias(qs, dqs, p)]),
         },
+        profile=acrobot_profile(p),
     )
 
 

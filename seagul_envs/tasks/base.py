@@ -21,6 +21,8 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from seagul_envs.tasks.profile import TaskProfile
+
 _TASK_NAME = re.compile(r"[A-Za-z][A-Za-z0-9]*(?:_[A-Za-z0-9]+)*")  # a CasADi Function name that takes "_suffix"
 
 FINGERPRINT_LENGTH = 16
@@ -84,6 +86,10 @@ class Task:
     """The task's physical parameter dataclass (for reference, rendering and tests)."""
     extras: dict[str, Any] = field(default_factory=dict)
     """Task-specific symbolic helpers (e.g. the acrobot's mass matrix for the MuJoCo test)."""
+    profile: TaskProfile = field(default_factory=TaskProfile)
+    """How the library treats the task beyond its problem: solver plan, validation set, success rule, LQR weights,
+    presets, Gymnasium id, MPC horizon, evaluation grid, figures (:class:`~seagul_envs.tasks.profile.TaskProfile`;
+    the defaults suit a new task)."""
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -193,7 +199,9 @@ class Task:
           ``control_period`` and ``max_sim_substep`` (floats exactly, by ``float.hex``);
         * ``params`` (a dataclass: its type and every field's name and value) and ``extras`` (its keys and values:
           arrays, numbers, strings, containers, dataclasses and CasADi functions by content; other callables, e.g. a
-          renderer, by their module and qualified name; any other object by its pickle).
+          renderer, by their module and qualified name; any other object by its pickle);
+        * ``profile`` (a dataclass like ``params``: the solver plan, validation set, success rule, presets, ...), so
+          a task whose solver plan or validation set differs never shares a cache either.
 
         It is deterministic across processes and runs (no ids or addresses enter it; checked for the built-in tasks),
         but CasADi's serialisation format belongs to its version, so another CasADi may give other fingerprints (a
@@ -293,8 +301,9 @@ def validate_task(task: Any) -> Task:
     Checks the types of the fields, the signatures of the CasADi functions (``dynamics: (nx, nu) -> nx``,
     ``stage_cost: (nx, nu) -> scalar``, ``terminal_cost: nx -> scalar``, all callable on SX symbols as the simulator
     and the transcription need), the shapes and ordering of the boxes (finite input bounds and X0, X0 inside the state
-    bounds), and the positivity of the times and counts. Custom tasks go through it before an env is built for them
-    (:func:`seagul_envs.make_env`, :func:`seagul_envs.register_task`).
+    bounds), the positivity of the times and counts, and the profile (its state indices, weights' shapes, choices).
+    Custom tasks go through it before an env is built for them (:func:`seagul_envs.make_env`,
+    :func:`seagul_envs.register_task`).
 
     Raises:
         TypeError: ``task`` is not a :class:`Task`.
@@ -410,6 +419,10 @@ def validate_task(task: Any) -> Task:
     positive("max_sim_substep", task.max_sim_substep)
     if not isinstance(task.extras, dict):
         problems.append(f"extras must be a dict, got {type(task.extras).__name__}")
+    if not isinstance(task.profile, TaskProfile):
+        problems.append(f"profile must be a seagul_envs TaskProfile, got {type(task.profile).__name__}")
+    else:
+        problems += task.profile.problems(task)
     if problems:
         raise ValueError(f"malformed task {name!r}: " + "; ".join(problems))
     return task

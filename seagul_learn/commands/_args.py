@@ -5,7 +5,13 @@ from __future__ import annotations
 import argparse
 import math
 
-from seagul_envs import available_tasks
+from seagul_envs import Task, available_tasks
+
+TASK_HELP = (
+    "a task name ({names}) or module:factory, a function returning your Task (e.g. "
+    "examples.custom_system:make_cartpole, or path/to/file.py:factory)"
+)
+"""Help of every ``--task`` option (``{names}`` is filled in)."""
 
 
 def task_name(value: str) -> str:
@@ -13,6 +19,24 @@ def task_name(value: str) -> str:
     if value not in available_tasks():
         raise argparse.ArgumentTypeError(f"unknown task {value!r}; available tasks: {', '.join(available_tasks())}")
     return value
+
+
+def task_argument(value: str) -> str | Task:
+    """A ``--task`` value: a registered name (returned as the name) or ``module:factory`` / ``path/file.py:factory``
+    (imported and called here, once; the Task object is returned and travels to the workers).
+
+    The errors name the problem: an unknown name (listing the available ones), a module that does not import, a
+    missing factory, a factory that raises or returns something that is not a Task, a malformed Task
+    (:func:`seagul_envs.load_task`).
+    """
+    from seagul_envs import load_task
+
+    if ":" not in value:
+        return task_name(value)
+    try:
+        return load_task(value)
+    except (ValueError, TypeError) as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
 
 
 def positive_int(value: str) -> int:
@@ -65,8 +89,14 @@ def fraction(value: str) -> float:
 
 
 def add_task_argument(parser: argparse.ArgumentParser, required: bool = True) -> None:
-    """``--task NAME``."""
-    parser.add_argument("--task", type=task_name, required=required, help=f"task name ({', '.join(available_tasks())})")
+    """``--task NAME`` or ``--task module:factory`` (:func:`task_argument`)."""
+    parser.add_argument(
+        "--task",
+        type=task_argument,
+        required=required,
+        metavar="NAME|MODULE:FACTORY",
+        help=TASK_HELP.format(names=", ".join(available_tasks())),
+    )
 
 
 def add_parallel_arguments(parser: argparse.ArgumentParser) -> None:

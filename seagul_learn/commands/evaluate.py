@@ -8,7 +8,9 @@ Example::
 writes ``summary.json``/``summary.csv``/``results.json``, ``heatmap.png`` and (glider) ``trajectories.png`` into
 ``--out`` (episodes are run by :mod:`seagul_control.evaluation`, tables and figures made by
 :mod:`seagul_learn.report`). Several ``--network`` files may be given (one MPC each, labelled by ``--label`` or the
-file's parent directory).
+file's parent directory). ``--task`` is a registered name or ``module:factory`` (your own Task, e.g.
+``--task examples.custom_system:make_cartpole``); the grid, the default horizon and the success rule are the task's
+(``task.profile``).
 """
 
 from __future__ import annotations
@@ -32,12 +34,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--full-horizon", action="store_true", help="include the full-horizon MPC (slow)")
     parser.add_argument("--sb3", action="append", default=[], help="a saved SB3 model zip (repeatable)")
     parser.add_argument("--sb3-algo", default="PPO", help="SB3 algorithm class of the --sb3 models (default PPO)")
-    parser.add_argument("--horizon", type=positive_int, default=None, help="MPC steps (default: 5 / 10)")
+    parser.add_argument(
+        "--horizon", type=positive_int, default=None, help="MPC steps (default: the task's; acrobot 5, glider 10)"
+    )
     parser.add_argument(
         "--trust-region", choices=("lqr", "box", "none"), default="lqr", help="guard of the learned terminal cost"
     )
     parser.add_argument("--no-jit", action="store_true", help="solve interpreted (no C compiler needed)")
-    parser.add_argument("--grid", type=positive_int, default=None, help="grid points per axis (default 20 / 6)")
+    parser.add_argument(
+        "--grid",
+        type=positive_int,
+        default=None,
+        help="grid points per axis (default: the task's; acrobot 20, glider 6)",
+    )
     parser.add_argument("--workers", type=positive_int, default=1, help="parallel processes (default 1)")
     parser.add_argument("--no-progress", action="store_true", help="hide progress bars")
 
@@ -73,18 +82,17 @@ def specs_from_args(args: argparse.Namespace) -> list[Any]:
 def run(args: argparse.Namespace) -> int:
     """Evaluate, write the tables and figures, print one line per policy; the last line is the output directory."""
     from seagul_control.evaluation import evaluate, start_grid
-    from seagul_envs import make_task
+    from seagul_envs import resolve_task
     from seagul_learn.report import summarize, write_outputs
 
-    task = make_task(args.task)
+    task = resolve_task(args.task)  # resolved once: the Task object goes to the workers
     specs = specs_from_args(args)
-    n = args.grid if args.grid is not None else (20 if args.task == "acrobot" else 6)
+    n = args.grid if args.grid is not None else task.profile.grid.points
     starts, grid = start_grid(task, n)
-    results = evaluate(
-        args.task, specs, starts, workers=args.workers, progress=not args.no_progress, record=args.task == "glider"
-    )
-    write_outputs(args.out, args.task, results, grid)
-    for row in summarize(args.task, results):
+    record = task.profile.trajectory_plot is not None
+    results = evaluate(task, specs, starts, workers=args.workers, progress=not args.no_progress, record=record)
+    write_outputs(args.out, task, results, grid)
+    for row in summarize(task, results):
         print(
             f"{row['policy']}: success {row['success_rate']:.1%}, mean distance {row['mean_final_distance']:.4g}, "
             f"mean cost {row['mean_cost']:.4g}, step median {row['median_step_ms']:.3g} ms, "

@@ -31,22 +31,20 @@ def run(args: argparse.Namespace) -> int:
     """Solve and store; prints counts and, last, the dataset directory."""
     from tqdm.auto import tqdm
 
-    from seagul_envs import make_task
+    from seagul_envs import resolve_task
     from seagul_learn.dataset import Dataset, count_failures
     from seagul_learn.solving import SolveRunner, solver_key, trajopt_batch_solver
     from seagul_learn.training import default_cache_dir, validation_dataset
 
     if args.num is not None and not args.out:
         raise ValueError("--out is required with --num")
-    task = make_task(args.task)
-    solver = trajopt_batch_solver(
-        args.task, workers=args.workers, backend=args.backend, solver_options=args.solver_options
-    )
-    key = solver_key(args.solver_options)
+    task = resolve_task(args.task)  # resolved once: the Task object goes to the workers
+    solver = trajopt_batch_solver(task, workers=args.workers, backend=args.backend, solver_options=args.solver_options)
+    key = solver_key(args.solver_options, task)
     if args.validation:
         cache = args.cache_dir or default_cache_dir()
         records = validation_dataset(task, solver, key, cache, args.workers, not args.no_progress)
-        print(f"{args.task} validation set: {len(records)} solves, {count_failures(records)} failed")
+        print(f"{task.name} validation set: {len(records)} solves, {count_failures(records)} failed")
         print(cache)
         return 0
     out = Path(args.out)
@@ -56,12 +54,12 @@ def run(args: argparse.Namespace) -> int:
     starts = task.sample_x0(np.random.default_rng([args.seed, 0]), args.num)
     runner = SolveRunner(solver, dataset, chunk_size=args.workers)
     records = []
-    with tqdm(total=args.num, desc=f"solving {args.task}", disable=args.no_progress) as bar:
+    with tqdm(total=args.num, desc=f"solving {task.name}", disable=args.no_progress) as bar:
         for lo in range(0, args.num, args.workers):
             hi = min(lo + args.workers, args.num)
             records += runner.solve(starts[lo:hi], np.full(hi - lo, task.tau_nominal), "uniform")
             bar.update(hi - lo)
-    print(f"{args.task}: {len(records)} solves ({runner.num_reused} reused), {count_failures(records)} failed")
+    print(f"{task.name}: {len(records)} solves ({runner.num_reused} reused), {count_failures(records)} failed")
     print(dataset.path)
     return 0
 

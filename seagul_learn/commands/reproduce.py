@@ -12,7 +12,7 @@ import argparse
 from pathlib import Path
 
 from seagul_learn.cli import Command
-from seagul_learn.commands._args import positive_int, task_name
+from seagul_learn.commands._args import positive_int, task_argument
 from seagul_learn.commands._config import Option, add_dataclass_arguments, dataclass_from_args
 
 
@@ -25,7 +25,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         parser,
         ExperimentConfig,
         {
-            "task": Option(positional=True, type=task_name, help="acrobot or glider"),
+            "task": Option(
+                positional=True,
+                type=task_argument,
+                metavar="TASK",
+                help="acrobot, glider (or another registered name), or module:factory returning a Task",
+            ),
             "preset": Option(
                 choices=("quick", "paper", "smoke"), help="experiment size (smoke only checks the pipeline)"
             ),
@@ -41,18 +46,24 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Run (or resume) the experiment; the last line printed is the path of ``report.md``."""
+    from seagul_envs import Task
+    from seagul_envs.tasks import task_label
     from seagul_learn.experiment import Experiment, ExperimentConfig
 
     if args.resume is not None:
         if args.out is not None and Path(args.out) != Path(args.resume):
             raise ValueError("give either --out (a new run) or --resume DIR (an interrupted one), not both")
-        experiment = Experiment.resume(Path(args.resume), workers=args.workers, progress=args.progress)
-        if experiment.config.task != args.task:
-            raise ValueError(f"{args.resume!r} is a {experiment.config.task} run, not {args.task}")
+        given = args.task if isinstance(args.task, Task) else None
+        experiment = Experiment.resume(Path(args.resume), workers=args.workers, progress=args.progress, task=given)
+        if task_label(experiment.config.task) != task_label(args.task):
+            raise ValueError(
+                f"{args.resume!r} is a {task_label(experiment.config.task)} run, not {task_label(args.task)}"
+            )
     else:
         config = dataclass_from_args(ExperimentConfig, args)
         experiment = Experiment.create(config, None if args.out is None else Path(args.out))
-    print(f"run directory: {experiment.out} (resume with: seagul reproduce {args.task} --resume {experiment.out})")
+    shown = "<the same module:factory>" if isinstance(args.task, Task) else args.task
+    print(f"run directory: {experiment.out} (resume with: seagul reproduce {shown} --resume {experiment.out})")
     report = experiment.run()
     print(report)
     return 0

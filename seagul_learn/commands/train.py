@@ -20,7 +20,7 @@ from seagul_learn.commands._args import (
     non_negative_int,
     positive_float,
     positive_int,
-    task_name,
+    task_argument,
 )
 from seagul_learn.commands._config import Option, add_dataclass_arguments, dataclass_from_args, json_value
 
@@ -59,7 +59,12 @@ def train_options() -> dict[str, Option]:
     from seagul_learn.training import SAMPLERS
 
     return {
-        "task": Option(type=task_name, required=True, note=f"one of: {', '.join(available_tasks())}"),
+        "task": Option(
+            type=task_argument,
+            required=True,
+            metavar="NAME|MODULE:FACTORY",
+            note=f"a name, one of: {', '.join(available_tasks())}; or module:factory returning a Task",
+        ),
         "sampler": Option(choices=SAMPLERS),
         "budget": Option(type=positive_int),
         "solves_per_round": Option(type=positive_int),
@@ -120,12 +125,13 @@ def config_from_args(args: argparse.Namespace) -> Any:
 
 def run(args: argparse.Namespace) -> int:
     """Train and print a summary; the last line is the run directory."""
+    from seagul_envs.tasks import task_label
     from seagul_learn.training import train
 
     result = train(config_from_args(args), args.out, resume=args.resume)
     last = result.metrics[-1]
     print(
-        f"{args.task} {args.sampler}: {result.num_solves} solves ({result.num_failures} failed), "
+        f"{task_label(args.task)} {args.sampler}: {result.num_solves} solves ({result.num_failures} failed), "
         f"{last.train_steps} training steps, validation mse_initial={last.mse_initial:.4g} "
         f"mse_all_knots={last.mse_all_knots:.4g}"
     )
