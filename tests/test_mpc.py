@@ -307,7 +307,7 @@ def test_goal_anchoring_removes_the_networks_value_and_slope_at_the_goal():
     net = ValueNetwork(4, (32,), task_name="acrobot", seed=3)
     anchored = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, goal_blend=0.0, **FAST)
     assert anchored.anchor_goal  # default for a zero-cost equilibrium goal
-    raw = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, anchor_goal=False, **FAST)
+    raw = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, anchor_goal=False, goal_blend=0.0, **FAST)
     g = task.goal
     assert abs(raw.terminal_cost_value(g, 2.0)) > 1e-3  # the random network is not zero there
     assert anchored.terminal_cost_value(g, 2.0) == pytest.approx(0.0, abs=1e-12)
