@@ -3,12 +3,13 @@
 Why: the sampler-driven training fixes its output standardisation from the 10 pretraining solves, so closed-loop
 tail labels (values up to the cap, with large dual gradients) arrive many standard deviations out and wreck the fit
 (docs/closed_loop.md, finding 7). This script fits a fresh network to the whole dataset with the standardisation
-taken from all (capped) labels and the gradient labels whose standardised norm exceeds ``--grad-max`` dropped.
+taken from all (capped) labels and the gradient labels whose standardised norm exceeds ``--grad-max`` dropped: the
+run's config with ``TrainConfig.refit_steps`` etc. overridden, fitted by :func:`seagul_learn.training.refit`.
 
     python scripts/refit_value.py RUN --cap 50 --grad-max 10 --hidden 64,64 --steps 20000 --out refit.pt
 
-Prints the number of knots, the dropped gradient labels and the loss every 5,000 steps; the last line is a JSON
-object with the output path and those counts.
+Prints the number of knots; the last line is a JSON object with the output path, the counts (knots, gradient labels
+used) and the wall time.
 """
 
 from __future__ import annotations
@@ -16,14 +17,13 @@ from __future__ import annotations
 import argparse
 import json
 import time
+from dataclasses import replace
 from pathlib import Path
 
-import numpy as np
 import torch
 
-from seagul_learn import ValueNetwork
 from seagul_learn.dataset import Dataset, training_arrays
-from seagul_learn.training import _as_tensors, training_loss
+from seagul_learn.training import TrainConfig, _as_tensors, _Trainer, make_network, refit
 
 
 def main() -> None:
@@ -44,43 +44,37 @@ def main() -> None:
     if args.cap <= 0 or args.grad_max <= 0 or args.steps < 1:
         parser.error("--cap and --grad-max must be > 0 and --steps >= 1")
 
-    config = json.loads((args.run / "config.json").read_text())
+    stored = TrainConfig.from_dict(json.loads((args.run / "config.json").read_text()))
+    config = replace(
+        stored,
+        value_cap=args.cap,
+        grad_label_max=args.grad_max,
+        hidden=tuple(int(w) for w in args.hidden.split(",")),
+        refit_steps=args.steps,
+        batch_size=args.batch_size,
+        lr=args.lr,
+        sobolev_weight=args.sobolev,
+        seed=args.seed,
+        torch_threads=args.threads,
+    )
+    task = config.resolve_task()
     meta = json.loads((args.run / "dataset" / "dataset.json").read_text())["meta"]
-    dataset = Dataset.open(args.run / "dataset", config["task"], meta=meta)
+    dataset = Dataset.open(args.run / "dataset", task.name, meta=meta)
     records = [r for r in dataset.records() if not args.max_solves or r.index < args.max_solves]
     arrays = training_arrays(records)
-    nx = arrays.x.shape[1]
-    hidden = tuple(int(w) for w in args.hidden.split(","))
-
-    network = ValueNetwork(nx, hidden, task_name=config["task"], seed=args.seed)
-    network.set_normalization(arrays.x, arrays.tau, np.minimum(arrays.value, args.cap))
-    data = _as_tensors(arrays, args.cap)
-    scale = network.in_std.numpy()[:nx] / float(network.out_std)
-    big = np.linalg.norm(np.nan_to_num(arrays.grad_x) * scale, axis=1) > args.grad_max
-    data["grad_ok"] &= torch.tensor(~big)
-    print(f"{len(records)} solves, {len(arrays)} knots, {int(big.sum())} gradient labels dropped", flush=True)
+    print(f"{len(records)} solves, {len(arrays)} knots", flush=True)
 
     torch.set_num_threads(args.threads)  # more threads than free cores makes each small step many times slower
-    torch.manual_seed(args.seed)
-    generator = torch.Generator().manual_seed(args.seed)
-    optimizer = torch.optim.Adam(network.parameters(), lr=args.lr)
-    schedule = torch.optim.lr_scheduler.CosineAnnealingLR(optimizer, args.steps)
     start = time.perf_counter()
-    for step in range(args.steps):
-        idx = torch.randint(0, len(arrays), (args.batch_size,), generator=generator)
-        loss = training_loss(network, {k: v[idx] for k, v in data.items()}, args.sobolev)
-        optimizer.zero_grad(set_to_none=True)
-        loss.backward()
-        optimizer.step()
-        schedule.step()
-        if step % 5000 == 0:
-            print(f"step {step}: loss {float(loss.detach()):.4g}", flush=True)
+    trainer = _Trainer(config, make_network(config, task), None)
+    network = refit(config, task, arrays, trainer)  # the same refit as TrainConfig.refit_steps
+    used = int(_as_tensors(arrays, config.value_cap, config.grad_label_max, network)["grad_ok"].sum())
     network.save(args.out)
     result = {
         "network": str(args.out),
         "solves": len(records),
         "knots": len(arrays),
-        "gradient_labels_dropped": int(big.sum()),
+        "gradient_labels_used": used,
         "train_s": round(time.perf_counter() - start, 1),
     }
     print(json.dumps(result))
