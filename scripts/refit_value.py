@@ -39,12 +39,14 @@ def main() -> None:
     parser.add_argument("--sobolev", type=float, default=1.0, help="weight of the gradient term")
     parser.add_argument("--max-solves", type=int, default=0, help="use only records with index below this (0: all)")
     parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--ensemble", type=int, default=1, help="members (>= 2: a ValueEnsemble, one fit each)")
+    parser.add_argument("--pessimism", type=float, default=1.0, help="the ensemble's spread weight in the MPC")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1: a small network is fastest so)")
     args = parser.parse_args()
     if args.cap <= 0 or args.grad_max <= 0 or args.steps < 1:
         parser.error("--cap and --grad-max must be > 0 and --steps >= 1")
 
-    stored = TrainConfig.from_dict(json.loads((args.run / "config.json").read_text()))
+    stored = TrainConfig.from_run(args.run)
     config = replace(
         stored,
         value_cap=args.cap,
@@ -56,6 +58,8 @@ def main() -> None:
         sobolev_weight=args.sobolev,
         seed=args.seed,
         torch_threads=args.threads,
+        ensemble=args.ensemble,
+        ensemble_pessimism=args.pessimism,
     )
     task = config.resolve_task()
     meta = json.loads((args.run / "dataset" / "dataset.json").read_text())["meta"]

@@ -307,19 +307,32 @@ class ClosedLoopSampler:
         return eligible[np.sort(picks)]
 
     # --------------------------------------------------------------------------------- sampling
+    def _split(self, num_solves: int) -> tuple[int, int]:
+        """``(uniform, tail)`` solves of a round of ``num_solves`` (before any shortfall of eligible queries)."""
+        opts = self.options
+        warmup = min(num_solves, max(0, opts.uniform_solves - self.pool.position))
+        rest = num_solves - warmup
+        n_uniform = warmup + round(opts.uniform_fraction * rest) if rest else warmup
+        return n_uniform, num_solves - n_uniform
+
+    def collects(self, num_solves: int) -> bool:
+        """Whether a round of ``num_solves`` runs the collecting MPC (False during the uniform warm-up)."""
+        return self._split(num_solves)[1] > 0
+
+    def collects_deployed(self, num_solves: int) -> bool:
+        """Whether a round of ``num_solves`` collects with the deployed guard (``trust_region``, after the
+        ``"lqr"`` warm-up rounds)."""
+        return self.collects(num_solves) and self.loop_rounds >= self.options.warmup_rounds
+
     def sample(self, num_solves: int, network: ValueModel, runner: SolveRunner) -> list[SolveRecord]:
         """Exactly ``num_solves`` solves: uniform draws, then tail problems at the chosen queries.
 
         If the episodes produce fewer eligible queries than needed (e.g. every step fell back), the rest of the
         round's solves are uniform draws, so the budget is always spent exactly.
         """
-        opts = self.options
         records: list[SolveRecord] = []
         # Uniform warm-up first (pool.position counts the uniform solves spent so far), then the mixed rounds.
-        warmup = min(num_solves, max(0, opts.uniform_solves - self.pool.position))
-        rest = num_solves - warmup
-        n_uniform = warmup + round(opts.uniform_fraction * rest) if rest else warmup
-        n_tail = num_solves - n_uniform
+        n_uniform, n_tail = self._split(num_solves)
         entry: dict[str, Any] = {"round": self.round}
         if n_tail > 0:
             mpc = self.collector(network)

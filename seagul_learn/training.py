@@ -170,6 +170,11 @@ class TrainConfig:
     """Closed-loop: budget solves spent on uniform draws before the first closed-loop round."""
     cl_jit: bool = True
     """Closed-loop: compile the collecting MPC (False: interpreted, for tests)."""
+    cl_collect_refit: bool = False
+    """Closed-loop: each round after the ``"lqr"`` warm-up rounds collects with a refit of the buffer so far
+    (``refit_steps`` Adam steps, as the final refit: the network that would be deployed if training stopped there)
+    instead of the loop's network, so the queries are the deployed controller's (DAgger). Costs one refit per such
+    round; the loop's own training is unchanged. Needs ``refit_steps > 0``."""
     value_cap: float = 0.0
     """Labels above this value are clipped to it and their gradient labels dropped (0 = off): a tail problem from
     a far-off query can cost 1e4 and would otherwise swamp the loss; the clipped label still says "expensive"."""
@@ -185,6 +190,11 @@ class TrainConfig:
     """After the last round, fit a fresh network (the seed's initial weights) to the whole buffer for this many Adam
     steps (uniform minibatches, cosine learning-rate decay, the buffer's standardisation); it becomes
     ``network.pt`` and the loop's network is kept as ``network_loop.pt`` (0 = off)."""
+    refit_ensemble: int = 0
+    """Members of the final refit (0 or 1: one network; >= 2: a :class:`ValueEnsemble` of that many fits from their
+    own initial weights, with ``ensemble_pessimism``). The members' errors are partly independent, so the planner
+    finds fewer under-estimates in their mean (docs/closed_loop.md); the loop's and the collecting refits' networks
+    stay single unless ``ensemble`` is set."""
     snapshots: tuple[int, ...] = ()
     """Budgets (solves) after whose round ``network_<solves>.pt`` is saved (success-per-solve curves from one run)."""
     uniform_tau: bool = False
@@ -249,6 +259,10 @@ class TrainConfig:
             raise ValueError(f"hidden must be positive layer widths, got {self.hidden}")
         self.adversarial_options()  # validates the adv_* fields
         self.closed_loop_options()  # validates the cl_* fields
+        if self.refit_ensemble < 0 or (self.refit_ensemble >= 2 and not self.refit_steps):
+            raise ValueError(f"refit_ensemble must be >= 0 and needs refit_steps > 0, got {self.refit_ensemble}")
+        if self.cl_collect_refit and not self.refit_steps:
+            raise ValueError("cl_collect_refit needs refit_steps > 0 (the collecting network is a refit)")
         if not (self.value_cap >= 0 and math.isfinite(self.value_cap)):
             raise ValueError(f"value_cap must be a number >= 0 (0 = off), got {self.value_cap}")
         if not (self.grad_label_max >= 0 and math.isfinite(self.grad_label_max)):
@@ -261,6 +275,10 @@ class TrainConfig:
                 f"snapshots {unreachable} are not round boundaries: a snapshot is taken after a round, so it must be "
                 f"a multiple of solves_per_round ({self.solves_per_round}) up to the budget ({self.budget})"
             )
+
+    def final_refit_config(self) -> TrainConfig:
+        """The config the final refit is made with (``ensemble = refit_ensemble`` when that asks for members)."""
+        return replace(self, ensemble=self.refit_ensemble) if self.refit_ensemble >= 2 else self
 
     def closed_loop_options(self) -> ClosedLoopOptions:
         """The closed-loop sampler's options from the ``cl_*`` fields."""
@@ -327,6 +345,19 @@ class TrainConfig:
                 raise ValueError(f"the stored task is {data.get('task')!r}, not {task.name!r}")
             data = {**data, "task": task}
         return cls(**data)
+
+    @classmethod
+    def from_run(cls, run_dir: str | Path, task: Task | None = None) -> TrainConfig:
+        """The config of a run directory (its ``config.json``, which also stores the task's fingerprint); with a
+        ``task``, that fingerprint must match (same check as a resume)."""
+        data = json.loads((Path(run_dir) / "config.json").read_text())
+        stored = data.pop("task_fingerprint", None)
+        if task is not None and stored is not None and stored != task.fingerprint():
+            raise ValueError(
+                f"run {str(run_dir)!r} was trained on a task {task.name!r} with fingerprint {stored}, not "
+                f"{task.fingerprint()} (same name, other content)"
+            )
+        return cls.from_dict(data, task)
 
     def result_fields(self) -> dict[str, Any]:
         """The fields that determine the results (everything but the runtime ones; the task by its name, whose
@@ -728,7 +759,11 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
         n_new = min(config.solves_per_round, config.budget - round_index * config.solves_per_round)
         if hasattr(sampler, "observe"):
             sampler.observe(buffer)
-        records = sampler.sample(n_new, network, runner)
+        collecting: ValueModel = network
+        if config.cl_collect_refit and getattr(sampler, "collects_deployed", lambda n: False)(n_new):
+            # Deterministic from (buffer, seed, round): a resumed run recomputes the same collecting network.
+            collecting = refit(config, task, buffer, _Trainer(config, network, None), round_index=round_index)
+        records = sampler.sample(n_new, collecting, runner)
         budget_records += records
         new = training_arrays(records, task.nx)
         newest = np.arange(len(buffer), len(buffer) + len(new))
@@ -760,7 +795,7 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
 
     if config.refit_steps:
         network.save(out / "network_loop.pt")
-        network = refit(config, task, buffer, trainer)
+        network = refit(config.final_refit_config(), task, buffer, trainer)
         trainer.record_metric(
             len(budget_records), count_failures(budget_records), config.pretrain_solves + len(budget_records)
         )
@@ -773,13 +808,16 @@ def _capped(value: np.ndarray, value_cap: float) -> np.ndarray:
     return np.minimum(value, value_cap) if value_cap > 0 else value
 
 
-def refit(config: TrainConfig, task: Task, buffer: TrainingArrays, trainer: _Trainer) -> ValueModel:
+def refit(
+    config: TrainConfig, task: Task, buffer: TrainingArrays, trainer: _Trainer, round_index: int | None = None
+) -> ValueModel:
     """Fit a fresh network to the whole buffer (``TrainConfig.refit_steps``); it replaces ``trainer.network``.
 
     The fresh network starts from the seed's initial weights with the buffer's standardisation (capped labels), so
     every label is in range from the first step; minibatches are uniform over the buffer (stream
-    ``_STREAM_REFIT_BATCHES``) and the learning rate decays along a cosine to 0. Deterministic, so a run
-    interrupted during the refit and resumed ends with the same network.
+    ``_STREAM_REFIT_BATCHES``, and the round for the collecting refits of ``cl_collect_refit``) and the learning
+    rate decays along a cosine to 0. Deterministic, so a run interrupted during the refit and resumed ends with the
+    same network.
     """
     network = make_network(config, task)
     network.set_normalization(buffer.x, buffer.tau, _capped(buffer.value, config.value_cap))
@@ -789,8 +827,8 @@ def refit(config: TrainConfig, task: Task, buffer: TrainingArrays, trainer: _Tra
         buffer,
         np.zeros(0, dtype=np.int64),
         config.refit_steps,
-        _rng(config.seed, _STREAM_REFIT_BATCHES),
-        count_steps=True,
+        _rng(config.seed, _STREAM_REFIT_BATCHES, 0 if round_index is None else round_index + 1),
+        count_steps=round_index is None,
         cosine=True,
     )
     return network

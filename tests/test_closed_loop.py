@@ -171,6 +171,39 @@ def test_closed_loop_training_resumes_exactly(closed_loop_run, tmp_path):
     assert a == b
 
 
+def test_collect_refit_collects_with_a_deterministic_refit(tmp_path):
+    """``cl_collect_refit``: the collecting MPC runs a refit of the buffer (other queries than the loop network's),
+    the same refit on every run and after an interruption."""
+    task = make_task("acrobot")
+    with pytest.raises(ValueError, match="refit_steps"):
+        _cl_config(tmp_path, cl_collect_refit=True)
+
+    def run(name, solver=None, resume=False, **overrides):
+        cfg = _cl_config(tmp_path / name, refit_steps=30, **overrides)
+        return train(
+            cfg, tmp_path / name / "run", resume=resume, batch_solver=solver or ToySolver(task), solver_name="toy"
+        )
+
+    def tails(result):
+        return [r.x_init.tolist() for r in result.dataset.records() if r.sampler == "closed-loop"]
+
+    first = run("a", cl_collect_refit=True)
+    assert len(tails(first)) == 8  # two closed-loop rounds of 4 tails, as without the option
+    assert tails(run("plain")) != tails(first)  # the loop network plans elsewhere than its refit
+
+    class Interrupt(ToySolver):
+        def __call__(self, starts, taus):
+            if self.num_solves >= 15:
+                raise KeyboardInterrupt
+            return super().__call__(starts, taus)
+
+    with pytest.raises(KeyboardInterrupt):
+        run("b", Interrupt(task), cl_collect_refit=True)
+    resumed = run("b", resume=True, cl_collect_refit=True)
+    assert tails(resumed) == tails(first)
+    np.testing.assert_array_equal(resumed.network.casadi_parameters(), first.network.casadi_parameters())
+
+
 def test_batch_solver_routes_tail_times_to_tail_problems_bellman_consistent():
     """A request with tau below T0 is the tail problem: its value equals the full solve's cost to go at that knot."""
     from seagul_learn.solving import trajopt_batch_solver

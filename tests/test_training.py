@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -343,3 +344,30 @@ def test_refit_replaces_the_network_and_resumes_to_the_same_weights(tmp_path):
     resumed = _run(tmp_path, "run", toy=toy, resume=True, **opts)
     assert toy.num_solves == 0
     np.testing.assert_array_equal(_weights(reference.network), _weights(resumed.network))
+
+
+def test_refit_ensemble_is_the_refit_script_s_ensemble_and_loads_as_one_file(tmp_path):
+    """``refit_ensemble=2``: ``network.pt`` is a 2-member ValueEnsemble (the loop's stays one network) and equals
+    the same refit made afterwards from the stored run (``training.refit`` with ``ensemble=2``), so a finished run
+    can be refit as an ensemble later with the same result."""
+    from seagul_learn.dataset import training_arrays
+    from seagul_learn.training import _Trainer, make_network, refit
+    from seagul_learn.value_network import ValueEnsemble
+
+    with pytest.raises(ValueError, match="refit_ensemble"):
+        TrainConfig(refit_ensemble=2)
+    result = _run(tmp_path, "ens", sampler="uniform", refit_steps=20, value_cap=20.0, refit_ensemble=2)
+    out = tmp_path / "ens"
+    loaded = ValueNetwork.load(out / "network.pt")
+    assert isinstance(loaded, ValueEnsemble) and len(loaded.networks) == 2
+    assert not isinstance(ValueNetwork.load(out / "network_loop.pt"), ValueEnsemble)
+    config = TrainConfig.from_run(out, task=make_task("acrobot"))
+    later_config = replace(config, refit_ensemble=0, ensemble=2)
+    task = make_task("acrobot")
+    buffer = training_arrays(result.dataset.records(), task.nx)
+    later = refit(later_config, task, buffer, _Trainer(later_config, make_network(later_config, task), None))
+    np.testing.assert_array_equal(later.casadi_parameters(), loaded.casadi_parameters())
+    x = task.sample_x0(np.random.default_rng(0), 4)
+    members = np.array([m.predict(x, np.full(4, 5.0)) for m in loaded.networks])
+    np.testing.assert_allclose(loaded.predict(x, np.full(4, 5.0)), members.mean(axis=0), rtol=1e-6)
+    assert not np.allclose(members[0], members[1])  # two fits from their own initial weights
