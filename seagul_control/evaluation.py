@@ -263,12 +263,13 @@ def run_episode(
     index: int = 0,
     record: bool = False,
     record_queries: bool = False,
+    env_id: str | None = None,
 ) -> EpisodeResult:
     """One episode of the policy ``spec`` describes from ``x0`` at the nominal time to go (``task``: a Task or a
-    registered name)."""
+    registered name), in ``gym.make(env_id)`` if given (another simulator of the task), else the task's env."""
     task = _canonical_task(task)
     policy = build_policy(task, spec)
-    episode, infos = run_policy_episode(task, policy, x0, index=index, record=record, label=spec.name)
+    episode, infos = run_policy_episode(task, policy, x0, index=index, record=record, label=spec.name, env_id=env_id)
     if record_queries:
         episode.queries = [
             [*info.terminal_state, float(info.terminal_tau)] for info in infos if info.terminal_state is not None
@@ -335,6 +336,23 @@ def run_policy_episode(
     return result, episode
 
 
+def check_env_task(task: Task, env_id: str) -> None:
+    """Raise a ValueError unless ``gym.make(env_id)`` simulates ``task`` (same name, state and input sizes)."""
+    import gymnasium as gym
+
+    import seagul_envs  # noqa: F401  (registers the envs)
+
+    try:
+        env = gym.make(env_id)
+    except gym.error.Error as exc:
+        raise ValueError(f"unknown env id {env_id!r}: {exc}") from exc
+    other = getattr(env.unwrapped, "task", None)
+    env.close()
+    if other is None or other.name != task.name or (other.nx, other.nu) != (task.nx, task.nu):
+        found = "no seagul task" if other is None else f"task {other.name!r}"
+        raise ValueError(f"env {env_id!r} simulates {found}, not {task.name!r}; pick an env of the evaluated task")
+
+
 def is_success(task: Task, x: np.ndarray, terminated: bool = False) -> bool:
     """The task's success rule (``task.profile.success``) on an episode's final state. Acrobot:
     ``||x - x*|| < 0.05``; glider: perched (position and speed tolerances) without crashing."""
@@ -348,8 +366,11 @@ def _run_chunk(
     indices: Sequence[int],
     record: bool,
     record_queries: bool = False,
+    env_id: str | None = None,
 ) -> list[EpisodeResult]:
-    return [run_episode(task, spec, x0, i, record, record_queries) for x0, i in zip(starts, indices, strict=True)]
+    return [
+        run_episode(task, spec, x0, i, record, record_queries, env_id) for x0, i in zip(starts, indices, strict=True)
+    ]
 
 
 def evaluate(
@@ -361,13 +382,15 @@ def evaluate(
     record: bool = False,
     chunk_size: int = 4,
     record_queries: bool = False,
+    env_id: str | None = None,
 ) -> list[EpisodeResult]:
     """Every policy from every start (joblib processes when ``workers > 1``); results ordered by policy, start.
 
     ``task`` is a Task object or a registered name, resolved once here; the Task itself is what the worker
     processes receive (nothing is looked up by name there). ``record`` keeps every visited state,
     ``record_queries`` the MPCs' planned terminal states (for the planner-query error,
-    :func:`seagul_learn.closed_loop.query_errors`).
+    :func:`seagul_learn.closed_loop.query_errors`). ``env_id`` runs the episodes in another registered env of the
+    same task (e.g. ``"SeagulAcrobotMujoco-v0"``: the MuJoCo physics under the analytic model's policies).
     """
     from joblib import Parallel, delayed
     from tqdm.auto import tqdm
@@ -379,6 +402,8 @@ def evaluate(
         raise ValueError(f"starts must have shape (n, {task.nx}), got {starts.shape}")
     if int(workers) < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
+    if env_id is not None:
+        check_env_task(task, env_id)
     names = [s.name for s in specs]
     if len(set(names)) != len(names):
         raise ValueError(f"policy labels must be unique, got {names}")
@@ -394,11 +419,11 @@ def evaluate(
     results: list[EpisodeResult] = []
     if workers == 1:
         outputs: Iterator[list[EpisodeResult]] = (
-            _run_chunk(task, spec, starts[idx], idx, record, record_queries) for spec, idx in jobs
+            _run_chunk(task, spec, starts[idx], idx, record, record_queries, env_id) for spec, idx in jobs
         )
     else:
         outputs = Parallel(n_jobs=int(workers), return_as="generator")(
-            delayed(_run_chunk)(task, spec, starts[idx], idx, record, record_queries) for spec, idx in jobs
+            delayed(_run_chunk)(task, spec, starts[idx], idx, record, record_queries, env_id) for spec, idx in jobs
         )
     for chunk in outputs:
         results.extend(chunk)

@@ -40,6 +40,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--trust-region", choices=("lqr", "box", "none"), default="lqr", help="guard of the learned terminal cost"
     )
+    parser.add_argument(
+        "--goal-blend",
+        type=float,
+        default=None,
+        help="the learned MPCs' goal_blend c: b l_f + (1 - b) Vhat with b = exp(-l_f / c) (0 = off; default: the "
+        "task's, acrobot 1)",
+    )
+    parser.add_argument(
+        "--env",
+        default=None,
+        metavar="ENV_ID",
+        help="run the episodes in this registered env of the task (e.g. SeagulAcrobotMujoco-v0; default: the task's)",
+    )
     parser.add_argument("--no-jit", action="store_true", help="solve interpreted (no C compiler needed)")
     parser.add_argument(
         "--grid",
@@ -61,9 +74,14 @@ def specs_from_args(args: argparse.Namespace) -> list[Any]:
     if args.horizon is not None:
         mpc_options.append(("horizon", args.horizon))
     specs = []
+    learned = [*mpc_options, ("trust_region", args.trust_region)]
+    if getattr(args, "goal_blend", None) is not None:
+        if args.goal_blend < 0:
+            raise ValueError(f"--goal-blend must be >= 0, got {args.goal_blend}")
+        learned.append(("goal_blend", args.goal_blend))
     for k, path in enumerate(args.network):
         label = args.label[k] if k < len(args.label) else f"mpc[{Path(path).parent.name or Path(path).stem}]"
-        specs.append(PolicySpec("mpc", label, path, (*mpc_options, ("trust_region", args.trust_region))))
+        specs.append(PolicySpec("mpc", label, path, tuple(learned)))
     if args.task_terminal:
         specs.append(PolicySpec("mpc", "mpc[task l_f]", None, tuple(mpc_options)))
     if args.lqr:
@@ -90,7 +108,9 @@ def run(args: argparse.Namespace) -> int:
     n = args.grid if args.grid is not None else task.profile.grid.points
     starts, grid = start_grid(task, n)
     record = task.profile.trajectory_plot is not None
-    results = evaluate(task, specs, starts, workers=args.workers, progress=not args.no_progress, record=record)
+    results = evaluate(
+        task, specs, starts, workers=args.workers, progress=not args.no_progress, record=record, env_id=args.env
+    )
     write_outputs(args.out, task, results, grid)
     for row in summarize(task, results):
         print(
