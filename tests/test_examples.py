@@ -12,7 +12,7 @@ EXAMPLES = sorted((Path(__file__).resolve().parents[1] / "examples").glob("*.py"
 
 
 def test_examples_are_found() -> None:
-    assert {p.name for p in EXAMPLES} >= {"quickstart.py", "train_ppo.py", "custom_system.py"}
+    assert {p.name for p in EXAMPLES} >= {"quickstart.py", "train_sb3.py", "custom_system.py"}
 
 
 @pytest.mark.parametrize("script", EXAMPLES, ids=lambda p: p.name)

@@ -1,0 +1,263 @@
+"""RL baselines on the MPCs' starts: SB3 PPO and SAC, learning curves over seeds, a small sweep (issue 12).
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_rl_baselines.py [--quick] [--tasks acrobot,glider] [--algos PPO,SAC]
+        [--seeds 3] [--workers 2] [--out DIR] [--steps acrobot:PPO=2000000,...] [--sweep] [--no-ship]
+
+For every task, algorithm and seed one run of :func:`seagul_learn.baselines.train_sb3` (zoo-derived settings, see
+that module) records its learning curve: success on the task's evaluation grid (acrobot 20 x 20 over
+``(th1, th2)`` at rest, glider 6 x 6) and mean return against environment steps. The saved final model is then
+evaluated as a user loads it (``SB3Policy``: model + observation statistics) on the grid and on the 100 held-out
+X0 starts every benchmark shares (seed 20211231). The zero-input policy on the same starts is the curves' floor.
+
+``--sweep`` first runs a small grid (learning rate x discount x network size, one seed, a fifth of the budget) per
+task and algorithm, keeps its table in ``sweep.json`` (committed as ``benchmarks/results/rl_sweep.json`` by the full
+run), and trains the seeds with each algorithm's best setting by final grid success (ties: mean return).
+
+Every run writes its directory before the next starts, so a re-run with the same ``--out`` skips what is done.
+Figures: ``rl_curves_<task>.png`` (median and 25-75 % band over seeds, success and return against steps).
+
+The last line of stdout is one JSON object (the full run's is committed as ``benchmarks/results/rl_baselines.json``;
+the best seed's model and statistics are copied to ``benchmarks/results/models/``)::
+
+    {"acrobot": {"ppo": {"env_steps", "seeds", "success_rate", "heldout_success_rate", "train_wall_s", "model",
+                         "algo", ...}, "sac": {...}}, "glider": {...}, "machine": {...}}
+
+``success_rate`` is the median over seeds on the grid, ``heldout_success_rate`` likewise on the held-out starts.
+"""
+
+from __future__ import annotations
+
+import argparse
+import itertools
+import json
+import shutil
+import sys
+import time
+from dataclasses import replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks._common import machine  # noqa: E402
+from seagul_learn.baselines import ALGOS, SB3Config, ZeroPolicy, episode_stats, heldout_starts, train_sb3  # noqa: E402
+
+#: Environment steps of the full run (issue 12: PPO up to 2M on the acrobot, SAC ~300k; comparable on the glider).
+FULL_STEPS: dict[str, dict[str, int]] = {
+    "acrobot": {"PPO": 2_000_000, "SAC": 300_000},
+    "glider": {"PPO": 1_000_000, "SAC": 200_000},
+}
+QUICK_STEPS: dict[str, dict[str, int]] = {
+    "acrobot": {"PPO": 8_192, "SAC": 3_000},
+    "glider": {"PPO": 8_192, "SAC": 3_000},
+}
+ENV_IDS = {"acrobot": "SeagulAcrobot-v0", "glider": "SeagulGlider-v0"}
+
+#: The sweep's grid (per algorithm): the settings that matter most for these small continuous-control tasks.
+SWEEP: dict[str, dict[str, list[Any]]] = {
+    "PPO": {"learning_rate": [3e-4, 1e-3], "gamma": [0.98, 0.995], "net_arch": [(64, 64), (256, 256)]},
+    "SAC": {"learning_rate": [3e-4, 7.3e-4], "gamma": [0.98, 0.995], "net_arch": [(256, 256), (400, 300)]},
+}
+
+
+def _run(config: SB3Config, out: Path, n_grid: int = 0, n_heldout: int = 100) -> dict[str, Any]:
+    """Train (or reuse) one run, then evaluate its saved model on the grid (``n_grid`` per axis, 0 = the task's)
+    and the held-out starts."""
+    done = out / "result.json"
+    if done.is_file():
+        return json.loads(done.read_text())
+    from seagul_control.evaluation import SB3Policy, start_grid
+    from seagul_learn.baselines import task_of_env
+
+    summary = train_sb3(config, out)
+    task = task_of_env(config.env_id)
+    policy = SB3Policy(task, summary["model"], algo=config.algo)
+    grid, _ = start_grid(task, n_grid or task.profile.grid.points)
+    result = {
+        **summary,
+        "grid": episode_stats(task, policy, grid),
+        "heldout": episode_stats(task, policy, heldout_starts(task, n_heldout)),
+    }
+    done.write_text(json.dumps(result, indent=1))
+    return result
+
+
+def _jobs(workers: int, jobs: list[tuple[SB3Config, Path]], quick: bool = False) -> list[dict[str, Any]]:
+    sizes = (3, 20) if quick else (0, 100)
+    if workers <= 1 or len(jobs) <= 1:
+        return [_run(c, o, *sizes) for c, o in jobs]
+    from joblib import Parallel, delayed
+
+    return list(Parallel(n_jobs=workers)(delayed(_run)(c, o, *sizes) for c, o in jobs))
+
+
+def sweep(task: str, algo: str, steps: int, out: Path, workers: int, quick: bool) -> dict[str, Any]:
+    """The sweep's table for one task and algorithm; returns it with the best setting."""
+    grid = SWEEP[algo]
+    combos = [dict(zip(grid, values, strict=True)) for values in itertools.product(*grid.values())]
+    if quick:
+        combos = combos[:2]
+    budget = max(steps // 5, 1)
+    jobs = []
+    for k, combo in enumerate(combos):
+        config = SB3Config(algo=algo, env_id=ENV_IDS[task], total_timesteps=budget, seed=100, eval_every=0, **combo)
+        if quick:
+            config = replace(config, eval_grid=3)
+        jobs.append((config, out / f"combo{k}"))
+    rows = []
+    for combo, result in zip(combos, _jobs(workers, jobs, quick), strict=True):
+        rows.append(
+            {
+                **{k: list(v) if isinstance(v, tuple) else v for k, v in combo.items()},
+                "env_steps": result["env_steps"],
+                "grid_success_rate": result["grid"]["success_rate"],
+                "grid_mean_return": result["grid"]["mean_return"],
+                "train_wall_s": result["train_wall_s"],
+            }
+        )
+    best = max(range(len(rows)), key=lambda i: (rows[i]["grid_success_rate"], rows[i]["grid_mean_return"]))
+    return {"budget": budget, "seed": 100, "rows": rows, "best": combos[best]}
+
+
+def plot(task: str, per_algo: dict[str, list[dict[str, Any]]], floor: dict[str, float], path: Path) -> None:
+    """Median and 25-75 % band over seeds of grid success and mean return against environment steps."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    for algo, runs in per_algo.items():
+        steps = np.array([p["env_steps"] for p in runs[0]["curve"]])
+        n = min(len(r["curve"]) for r in runs)
+        for ax, key in zip(axes, ("success_rate", "mean_return"), strict=True):
+            vals = np.array([[p[key] for p in r["curve"][:n]] for r in runs])
+            med = np.median(vals, axis=0)
+            ax.plot(steps[:n], med, label=f"{algo} (median of {len(runs)})")
+            ax.fill_between(steps[:n], *np.percentile(vals, [25, 75], axis=0), alpha=0.25)
+    for ax, key, label in zip(axes, ("success_rate", "mean_return"), ("grid success", "mean return"), strict=True):
+        ax.axhline(floor[key], color="k", ls=":", label="zero input")
+        ax.set_xlabel("environment steps")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    axes[1].set_yscale("symlog")
+    axes[0].legend()
+    fig.suptitle(f"{task}: SB3 baselines on the evaluation grid")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def run_task(task: str, algos: list[str], args: argparse.Namespace, out: Path, ship: Path | None) -> dict[str, Any]:
+    from seagul_control.evaluation import start_grid
+    from seagul_learn.baselines import task_of_env
+
+    env_id = ENV_IDS[task]
+    task_obj = task_of_env(env_id)
+    steps_table = QUICK_STEPS if args.quick else FULL_STEPS
+    grid, _ = start_grid(task_obj, 3 if args.quick else task_obj.profile.grid.points)
+    zero = ZeroPolicy(task_obj.nu)
+    floor = episode_stats(task_obj, zero, grid)
+    floor_heldout = episode_stats(task_obj, zero, heldout_starts(task_obj, 20 if args.quick else 100))
+    result: dict[str, Any] = {"zero_input": {"grid": floor, "heldout": floor_heldout}}
+    per_algo: dict[str, list[dict[str, Any]]] = {}
+    sweeps: dict[str, Any] = {}
+    for algo in algos:
+        steps = args.steps.get((task, algo), steps_table[task][algo])
+        best: dict[str, Any] = {}
+        if args.sweep:
+            sweeps[algo] = sweep(task, algo, steps, out / task / algo / "sweep", args.workers, args.quick)
+            best = sweeps[algo]["best"]
+        eval_every = max(steps // 20, 1)
+        jobs = []
+        for seed in range(args.seeds):
+            config = SB3Config(
+                algo=algo, env_id=env_id, total_timesteps=steps, seed=seed, eval_every=eval_every, **best
+            )
+            if args.quick:
+                config = replace(config, eval_grid=3)
+            jobs.append((config, out / task / algo / f"seed{seed}"))
+        runs = _jobs(args.workers, jobs, args.quick)
+        per_algo[algo] = runs
+        grid_rates = [r["grid"]["success_rate"] for r in runs]
+        held_rates = [r["heldout"]["success_rate"] for r in runs]
+        best_seed = max(range(len(runs)), key=lambda i: (grid_rates[i], runs[i]["grid"]["mean_return"]))
+        model = runs[best_seed]["model"]
+        if ship is not None:
+            dest = ship / f"{task}_{algo.lower()}"
+            dest.mkdir(parents=True, exist_ok=True)
+            src = Path(model).parent
+            for name in ("model.zip", "vecnormalize.pkl"):
+                if (src / name).is_file():
+                    shutil.copy2(src / name, dest / name)
+            model = str((dest / "model.zip").relative_to(ROOT))
+        result[algo.lower()] = {
+            "algo": algo,
+            "env_steps": int(runs[0]["env_steps"]),
+            "seeds": len(runs),
+            "success_rate": float(np.median(grid_rates)),
+            "heldout_success_rate": float(np.median(held_rates)),
+            "train_wall_s": float(np.median([r["train_wall_s"] for r in runs])),
+            "model": model,
+            "per_seed_success": grid_rates,
+            "per_seed_heldout": held_rates,
+            "mean_final_distance": float(np.median([r["grid"]["mean_final_distance"] for r in runs])),
+            "settings": runs[0]["resolved"] | {"gamma": runs[0]["config"]["gamma"]},
+        }
+    if sweeps:
+        (out / task / "sweep.json").write_text(json.dumps(sweeps, indent=1))
+        result["sweep"] = sweeps
+    figure = out / task / f"rl_curves_{task}.png"
+    plot(task, per_algo, floor, figure)
+    result["figure"] = str(figure)
+    return result
+
+
+def _parse_steps(text: str) -> dict[tuple[str, str], int]:
+    table: dict[tuple[str, str], int] = {}
+    for item in filter(None, text.split(",")):
+        key, _, value = item.partition("=")
+        task, _, algo = key.partition(":")
+        if not value or algo not in ALGOS or task not in ENV_IDS:
+            raise argparse.ArgumentTypeError(f"--steps entries look like acrobot:PPO=2000000, got {item!r}")
+        table[(task, algo)] = int(value)
+    return table
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="a minutes-long check of the pipeline")
+    parser.add_argument("--tasks", default="acrobot,glider", help="comma-separated tasks")
+    parser.add_argument("--algos", default="PPO,SAC", help="comma-separated algorithms")
+    parser.add_argument("--seeds", type=int, default=None, help="seeds per algorithm (default 3; --quick 2)")
+    parser.add_argument("--workers", type=int, default=2, help="parallel training runs")
+    parser.add_argument("--steps", type=_parse_steps, default={}, help="budgets, e.g. acrobot:SAC=100000")
+    parser.add_argument("--sweep", action="store_true", help="run the hyperparameter sweep first")
+    parser.add_argument("--out", default=None, help="work directory (default /tmp/seagul-bench-rl[-quick])")
+    parser.add_argument("--no-ship", action="store_true", help="do not copy the best models into the repository")
+    args = parser.parse_args(argv)
+    if args.seeds is None:
+        args.seeds = 2 if args.quick else 3
+    algos = [a for a in args.algos.split(",") if a]
+    tasks = [t for t in args.tasks.split(",") if t]
+    if set(algos) - set(ALGOS) or set(tasks) - set(ENV_IDS):
+        parser.error(f"--algos from {list(ALGOS)}, --tasks from {list(ENV_IDS)}")
+    out = Path(args.out or f"/tmp/seagul-bench-rl{'-quick' if args.quick else ''}")
+    ship = None if (args.quick or args.no_ship) else ROOT / "benchmarks" / "results" / "models"
+    t0 = time.perf_counter()
+    result: dict[str, Any] = {}
+    for task in tasks:
+        result[task] = run_task(task, algos, args, out, ship)
+        print(f"{task}: " + ", ".join(f"{a}: {result[task][a.lower()]['success_rate']:.1%}" for a in algos), flush=True)
+    result["machine"] = {**machine(), "wall_s": round(time.perf_counter() - t0, 1)}
+    print(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,325 @@
+"""Reinforcement-learning baselines: stable-baselines3 PPO and SAC on the seagul envs, judged on the MPCs' starts.
+
+One config (:class:`SB3Config`, CleanRL style) declares a run; :func:`train_sb3` trains it, records a learning
+curve (success on the task's evaluation grid and mean return, every ``eval_every`` environment steps, deterministic
+actions) and saves ``model.zip``, ``vecnormalize.pkl`` (the observation statistics, picked up by
+:class:`seagul_control.evaluation.SB3Policy`) and ``curve.json`` into the run directory.
+
+Hyperparameters start from rl-baselines3-zoo's tuned entries for the closest tasks (``ZOO_DEFAULTS``):
+
+* **PPO**: ``hyperparams/ppo.yml``, ``Pendulum-v1`` (continuous-torque swing/balance): 4 envs, ``n_steps=1024``,
+  ``gae_lambda=0.95``, 10 epochs, ``lr=1e-3``, ``clip_range=0.2``, gSDE with ``sde_sample_freq=4``, no entropy bonus.
+* **SAC**: ``hyperparams/sac.yml``, ``InvertedDoublePendulumBulletEnv-v0`` (a two-link balance task, the zoo's
+  pybullet defaults, marked tuned): ``lr=7.3e-4``, buffer 300,000, batch 256, ``ent_coef="auto"``, ``tau=0.02``,
+  ``train_freq=gradient_steps=8``, ``learning_starts=10000``, gSDE with ``log_std_init=-3``, ``net_arch=[400, 300]``.
+
+Changed for these tasks, with reasons: ``gamma=0.98`` for both (zoo: 0.9 for Pendulum, 0.98 for the double
+pendulum): episodes are 50 (acrobot) or ~32 (glider) steps and the terminal cost arrives at the end;
+observation normalisation (``VecNormalize``) for both and reward normalisation for PPO, because a diverging acrobot
+costs up to 1e5 per step while balancing costs ~1e-3. The sweep in ``benchmarks/bench_rl_baselines.py`` varies the
+settings that matter (learning rate, discount, network size).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import time
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field, replace
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ALGOS = ("PPO", "SAC")
+
+#: rl-baselines3-zoo settings each algorithm starts from (module docstring), as SB3 constructor arguments.
+ZOO_DEFAULTS: dict[str, dict[str, Any]] = {
+    "PPO": {
+        "n_envs": 4,
+        "learning_rate": 1e-3,
+        "net_arch": (64, 64),
+        "algo_kwargs": {
+            "n_steps": 1024,
+            "batch_size": 64,
+            "n_epochs": 10,
+            "gae_lambda": 0.95,
+            "clip_range": 0.2,
+            "ent_coef": 0.0,
+            "use_sde": True,
+            "sde_sample_freq": 4,
+        },
+    },
+    "SAC": {
+        "n_envs": 1,
+        "learning_rate": 7.3e-4,
+        "net_arch": (400, 300),
+        "algo_kwargs": {
+            "buffer_size": 300_000,
+            "batch_size": 256,
+            "ent_coef": "auto",
+            "tau": 0.02,
+            "train_freq": 8,
+            "gradient_steps": 8,
+            "learning_starts": 10_000,
+            "use_sde": True,
+        },
+        "policy_kwargs": {"log_std_init": -3.0},
+    },
+}
+
+
+@dataclass
+class SB3Config:
+    """Everything that defines an RL baseline run (one place; the example's command line is derived from it)."""
+
+    algo: str = "PPO"
+    """``"PPO"`` or ``"SAC"``."""
+    env_id: str = "SeagulAcrobot-v0"
+    """Gymnasium id to train in (any registered seagul env)."""
+    total_timesteps: int = 1_000_000
+    """Environment steps (summed over the parallel envs)."""
+    seed: int = 0
+    """Seed of the envs, the networks and the exploration."""
+    learning_rate: float = 0.0
+    """Adam learning rate (0 = the zoo entry's)."""
+    gamma: float = 0.98
+    """Discount."""
+    net_arch: tuple[int, ...] = ()
+    """Hidden widths of the policy and value/Q networks (empty = the zoo entry's: PPO 64,64; SAC 400,300)."""
+    n_envs: int = 0
+    """Parallel envs (0 = the zoo entry's: PPO 4, SAC 1)."""
+    normalize: bool = True
+    """Normalise observations (and, for PPO, rewards) with ``VecNormalize``; the statistics are saved."""
+    eval_every: int = 50_000
+    """Environment steps between two points of the learning curve (0 = only at the end)."""
+    eval_grid: int = 0
+    """Grid points per axis of the curve's evaluation (0 = the task's evaluation grid, acrobot 20, glider 6)."""
+    progress: bool = False
+    """Show SB3's progress bar."""
+    algo_overrides: dict[str, Any] = field(default_factory=dict)
+    """Further SB3 constructor arguments over the zoo entry's (e.g. ``{"ent_coef": 0.01}``)."""
+
+    def __post_init__(self) -> None:
+        self.net_arch = tuple(int(w) for w in self.net_arch)
+        if self.algo not in ALGOS:
+            raise ValueError(f"unknown algo {self.algo!r}; choose one of {list(ALGOS)}")
+        if int(self.total_timesteps) < 1:
+            raise ValueError(f"total_timesteps must be >= 1, got {self.total_timesteps}")
+        if not (0.0 < self.gamma <= 1.0):
+            raise ValueError(f"gamma must be in (0, 1], got {self.gamma}")
+        if not (self.learning_rate >= 0 and math.isfinite(self.learning_rate)):
+            raise ValueError(f"learning_rate must be >= 0 (0: the zoo's), got {self.learning_rate}")
+        for name in ("n_envs", "eval_every", "eval_grid"):
+            if int(getattr(self, name)) < 0:
+                raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
+        if any(w < 1 for w in self.net_arch):
+            raise ValueError(f"net_arch widths must be >= 1, got {self.net_arch}")
+
+    # ------------------------------------------------------------------------------------ resolved settings
+    def resolved(self) -> dict[str, Any]:
+        """The settings actually used: the zoo entry with this config's values over it."""
+        zoo = ZOO_DEFAULTS[self.algo]
+        kwargs = {**zoo["algo_kwargs"], **self.algo_overrides}
+        return {
+            "n_envs": self.n_envs or zoo["n_envs"],
+            "learning_rate": self.learning_rate or zoo["learning_rate"],
+            "net_arch": list(self.net_arch or zoo["net_arch"]),
+            "algo_kwargs": kwargs,
+            "policy_kwargs": dict(zoo.get("policy_kwargs", {})),
+        }
+
+    def to_dict(self) -> dict[str, Any]:
+        """JSON-ready dict (``config.json``)."""
+        out = asdict(self)
+        out["net_arch"] = list(self.net_arch)
+        return out
+
+
+def task_of_env(env_id: str) -> Any:
+    """The Task an env id simulates (its ``unwrapped.task``)."""
+    import gymnasium as gym
+
+    import seagul_envs  # noqa: F401  (registers the envs)
+
+    env = gym.make(env_id)
+    try:
+        return env.unwrapped.task  # type: ignore[attr-defined]
+    finally:
+        env.close()
+
+
+def heldout_starts(task: Any, n: int = 100) -> np.ndarray:
+    """``n`` starts drawn uniformly from X0 with the held-out seed shared by every benchmark (never trained on)."""
+    return task.sample_x0(np.random.default_rng(20211231), n)
+
+
+class _NormalizedPolicy:
+    """A live SB3 model behind the predictor protocol (observations normalised with the current statistics)."""
+
+    def __init__(self, model: Any, venv: Any) -> None:
+        self.model, self.venv = model, venv
+
+    def predict(self, observation: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True):
+        obs = np.asarray(observation, dtype=np.float32)
+        if self.venv is not None:
+            obs = self.venv.normalize_obs(obs)
+        return self.model.predict(obs, deterministic=deterministic)
+
+
+class ZeroPolicy:
+    """The zero-input policy (the curves' floor: what doing nothing achieves)."""
+
+    def __init__(self, nu: int) -> None:
+        self.nu = int(nu)
+
+    def predict(self, observation: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True):
+        return np.zeros(self.nu, dtype=np.float32), None
+
+
+def episode_stats(task: Any, policy: Any, starts: np.ndarray, env_id: str | None = None) -> dict[str, float]:
+    """Success rate (the task's rule), mean return and mean final distance of ``policy`` from ``starts``."""
+    from seagul_control.evaluation import run_policy_episode
+
+    results = [run_policy_episode(task, policy, x0, index=i, env_id=env_id)[0] for i, x0 in enumerate(starts)]
+    return {
+        "success_rate": float(np.mean([r.success for r in results])),
+        "mean_return": float(np.mean([-r.cost for r in results])),
+        "mean_final_distance": float(np.mean([r.final_distance for r in results])),
+    }
+
+
+def _make_model(config: SB3Config, venv: Any) -> Any:
+    import stable_baselines3
+
+    settings = config.resolved()
+    cls = getattr(stable_baselines3, config.algo)
+    policy_kwargs = {**settings["policy_kwargs"], "net_arch": settings["net_arch"]}
+    return cls(
+        "MlpPolicy",
+        venv,
+        learning_rate=settings["learning_rate"],
+        gamma=config.gamma,
+        policy_kwargs=policy_kwargs,
+        seed=config.seed,
+        device="cpu",
+        verbose=0,
+        **settings["algo_kwargs"],
+    )
+
+
+def train_sb3(
+    config: SB3Config, out: str | Path, on_point: Callable[[dict[str, Any]], None] | None = None
+) -> dict[str, Any]:
+    """Train ``config`` into ``out``; returns the run's summary (also ``curve.json``).
+
+    The learning curve's points (``curve``) hold ``env_steps``, ``wall_s`` (training time so far, evaluation
+    excluded), ``success_rate`` and ``mean_return`` on the grid; ``on_point`` sees each as it is made.
+    """
+    import torch
+    from stable_baselines3.common.callbacks import BaseCallback
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    from seagul_control.evaluation import start_grid
+
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    torch.set_num_threads(1)  # small networks: one thread is fastest and keeps runs machine-independent
+    task = task_of_env(config.env_id)
+    settings = config.resolved()
+    venv: Any = make_vec_env(config.env_id, n_envs=settings["n_envs"], seed=config.seed, vec_env_cls=DummyVecEnv)
+    if config.normalize:
+        venv = VecNormalize(venv, norm_obs=True, norm_reward=config.algo == "PPO", gamma=config.gamma)
+    model = _make_model(config, venv)
+    n_grid = config.eval_grid or task.profile.grid.points
+    grid, _ = start_grid(task, n_grid)
+    live = _NormalizedPolicy(model, venv if config.normalize else None)
+    curve: list[dict[str, Any]] = []
+    clock = {"train": 0.0, "since": time.perf_counter()}
+
+    def point() -> None:
+        clock["train"] += time.perf_counter() - clock["since"]
+        row = {"env_steps": int(model.num_timesteps), "wall_s": round(clock["train"], 1)}
+        row.update(episode_stats(task, live, grid, config.env_id))
+        curve.append(row)
+        if on_point is not None:
+            on_point(row)
+        clock["since"] = time.perf_counter()
+
+    class Curve(BaseCallback):
+        def __init__(self) -> None:
+            super().__init__()
+            self.next_point = config.eval_every
+
+        def _on_step(self) -> bool:
+            if config.eval_every and self.num_timesteps >= self.next_point:
+                point()
+                self.next_point += config.eval_every
+            return True
+
+    model.learn(total_timesteps=int(config.total_timesteps), callback=Curve(), progress_bar=config.progress)
+    if not curve or curve[-1]["env_steps"] != model.num_timesteps:
+        point()
+    model.save(out / "model.zip")
+    if config.normalize:
+        venv.save(str(out / "vecnormalize.pkl"))
+    summary = {
+        "config": config.to_dict(),
+        "resolved": settings,
+        "env_steps": int(model.num_timesteps),
+        "train_wall_s": curve[-1]["wall_s"],
+        "curve": curve,
+        "model": str(out / "model.zip"),
+    }
+    _write_json(out / "curve.json", summary)
+    return summary
+
+
+def _write_json(path: Path, payload: Any) -> None:
+    from seagul_control._io import atomic_write_text
+
+    atomic_write_text(path, json.dumps(payload, indent=1))
+
+
+def config_from_args(argv: list[str] | None = None, description: str = "") -> tuple[SB3Config, Path]:
+    """``(config, out)`` from the command line: one ``--flag`` per :class:`SB3Config` field (help from the field
+    docstrings), ``--out DIR`` and ``--test`` (a seconds-long run for CI)."""
+    import argparse
+
+    from seagul_learn.commands._config import Option, add_dataclass_arguments, dataclass_from_args
+
+    parser = argparse.ArgumentParser(
+        description=description or "Train an SB3 baseline on a seagul env.",
+        formatter_class=argparse.RawDescriptionHelpFormatter,
+    )
+    add_dataclass_arguments(parser, SB3Config, {"algo": Option(choices=ALGOS)})
+    parser.add_argument("--out", type=Path, default=None, help="run directory (default: runs/<algo>_<env id>)")
+    parser.add_argument("--test", action="store_true", help="a seconds-long run (CI smoke test)")
+    args = parser.parse_args(argv)
+    try:
+        config = dataclass_from_args(SB3Config, args)
+    except ValueError as exc:
+        parser.error(str(exc))
+    if args.test:
+        config = smoke_config(config)
+    out = args.out or Path("runs") / f"{config.algo.lower()}_{config.env_id}"
+    return config, out
+
+
+def smoke_config(config: SB3Config) -> SB3Config:
+    """``config`` shrunk to a seconds-long run (CI): tiny budget and networks, a 3 x 3 curve grid."""
+    small = (
+        {"n_steps": 64, "batch_size": 32, "n_epochs": 1}
+        if config.algo == "PPO"
+        else {"learning_starts": 64, "batch_size": 32, "buffer_size": 1000}
+    )
+    return replace(
+        config,
+        total_timesteps=256,
+        eval_every=128,
+        eval_grid=3,
+        net_arch=(16,),
+        algo_overrides={**config.algo_overrides, **small},
+    )
