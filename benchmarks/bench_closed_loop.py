@@ -34,8 +34,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import shutil
 import sys
 import time
@@ -48,6 +46,7 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from benchmarks._common import machine  # noqa: E402
 from seagul_control.evaluation import PolicySpec, evaluate, start_grid  # noqa: E402
 from seagul_envs import make_task  # noqa: E402
 
@@ -57,17 +56,23 @@ METHODS: dict[str, dict[str, Any]] = {
     "adversarial": {"sampler": "adversarial"},
     "uniform+sobolev": {"sampler": "uniform", "sobolev_weight": 1.0},
     "adversarial+sobolev": {"sampler": "adversarial", "sobolev_weight": 1.0},
-    # 1,000 uniform solves, then rounds of 50 tail problems at the queries of the "lqr"-guarded collecting MPC
-    # (a safer controller than the deployed one: its queries stay teachable), chosen at random among them.
+    # 1,000 uniform solves; 10 rounds of 50 tail problems at the queries of the "lqr"-guarded collecting MPC (a
+    # safer controller than the deployed one: its queries stay teachable); then 10 rounds at the queries of the
+    # deployed controller itself (unguarded, blended), each collected with a refit of the buffer so far (the
+    # network that would be deployed then: DAgger). Queries chosen at random. The final refit is an ensemble of 3
+    # fits, deployed as their mean (docs/closed_loop.md, fifth session).
     "closed-loop+sobolev": {
         "sampler": "closed-loop",
         "sobolev_weight": 1.0,
         "cl_uniform_solves": 1000,
-        "cl_trust_region": "lqr",
-        "cl_warmup_rounds": 0,
+        "cl_trust_region": "none",
+        "cl_warmup_rounds": 10,
+        "cl_collect_refit": True,
         "cl_selection": "random",
         "cl_episodes": 20,
         "cl_jit": False,
+        "refit_ensemble": 3,
+        "ensemble_pessimism": 0.0,
     },
 }
 
@@ -91,7 +96,7 @@ class BenchConfig:
     """Every number of one benchmark run (``--quick`` replaces some of them)."""
 
     task: str = "acrobot"
-    budgets: tuple[int, ...] = (1000, 1500)
+    budgets: tuple[int, ...] = (1000, 2000)
     seeds: int = 5
     seed_list: tuple[int, ...] | None = None
     """Explicit seeds (default ``range(seeds)``)."""
@@ -126,7 +131,9 @@ class BenchConfig:
                 goal_blend=blend,
                 methods=("uniform+sobolev", SHIPPED),
                 train={**common, "train_steps_per_round": 100, "renormalize": True, "value_cap": 50.0},
-                method_overrides={SHIPPED: {"cl_uniform_solves": 25, "cl_episodes": 4}},
+                method_overrides={
+                    SHIPPED: {"cl_uniform_solves": 25, "cl_episodes": 4, "cl_warmup_rounds": 1, "refit_steps": 300}
+                },
             )
         return cls(task=task, train=dict(FULL_TRAIN), goal_blend=blend, methods=("uniform+sobolev", SHIPPED))
 
@@ -417,24 +424,6 @@ def run_task(bench: BenchConfig, out: Path, workers: int, ship_dir: Path | None)
         "wall_s": round(time.perf_counter() - t_start, 1),
     }
     return block
-
-
-def machine() -> dict[str, Any]:
-    import casadi
-
-    cpu = platform.processor()
-    try:
-        lines = Path("/proc/cpuinfo").read_text().splitlines()
-        cpu = next((ln.split(":", 1)[1].strip() for ln in lines if "model name" in ln), cpu)
-    except OSError:
-        pass
-    return {
-        "python": platform.python_version(),
-        "casadi": casadi.__version__,
-        "cpu": cpu,
-        "cores": os.cpu_count(),
-        "load_avg_1m": round(os.getloadavg()[0], 2),
-    }
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -21,53 +21,28 @@ from __future__ import annotations
 
 import argparse
 import json
-import platform
 import statistics
 import sys
 import time
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import casadi
 import gymnasium as gym
-import mujoco
 import numpy as np
 from gymnasium.envs.classic_control import acrobot as gym_acrobot
 from scipy.integrate import solve_ivp
 
-import seagul_envs
-from seagul_envs import make_task
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+import seagul_envs  # noqa: E402
+from benchmarks._common import machine  # noqa: E402
+from seagul_envs import make_task  # noqa: E402
 
 ENVS = ["Acrobot-v1", *seagul_envs.ENV_IDS]
 BASELINE = "Acrobot-v1"
-
-
-def machine() -> dict[str, Any]:
-    cpu = "unknown"
-    try:
-        with open("/proc/cpuinfo") as f:
-            for line in f:
-                if line.startswith("model name"):
-                    cpu = line.split(":", 1)[1].strip()
-                    break
-    except OSError:
-        cpu = platform.processor() or "unknown"
-    try:
-        import os
-
-        cores = len(os.sched_getaffinity(0))
-    except (AttributeError, OSError):
-        cores = None
-    return {
-        "platform": platform.platform(),
-        "cpu": cpu,
-        "cores": cores,
-        "python": platform.python_version(),
-        "numpy": np.__version__,
-        "casadi": casadi.__version__,
-        "mujoco": mujoco.__version__,
-        "gymnasium": gym.__version__,
-    }
 
 
 def make_runner(env_id: str, wrapped: bool, steps: int, seed: int) -> Callable[[], float]:
@@ -209,8 +184,8 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     args = parser.parse_args(argv)
     reps, steps = (3, 300) if args.quick else (args.reps, args.steps)
 
-    info = machine()
-    print(f"machine: {info['cpu']} ({info['cores']} cores), {info['platform']}")
+    info = machine("mujoco", "gymnasium")
+    print(f"machine: {info['cpu']} ({info['cores_available']} of {info['cores']} cores available), {info['platform']}")
     print("versions: " + ", ".join(f"{k} {info[k]}" for k in ("python", "numpy", "casadi", "mujoco", "gymnasium")))
     print(f"{reps} interleaved repetitions x {steps} steps per env; medians")
     results = speed(reps, steps)

@@ -27,8 +27,6 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
-import platform
 import sys
 import time
 from pathlib import Path
@@ -36,6 +34,7 @@ from typing import Any
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from benchmarks._common import machine
 from seagul_control.evaluation import PolicySpec, evaluate, start_grid
 from seagul_envs import make_task
 from seagul_learn.report import summarize, write_outputs
@@ -120,27 +119,6 @@ def run_task(
     return block, list(rows.values())
 
 
-def machine_info() -> dict[str, Any]:
-    """CPU, cores, load and library versions (step times depend on them)."""
-    import casadi
-
-    info: dict[str, Any] = {
-        "python": platform.python_version(),
-        "casadi": casadi.__version__,
-        "cpu": platform.processor() or platform.machine(),
-        "cores": os.cpu_count(),
-        "load_avg_1m": round(os.getloadavg()[0], 2) if hasattr(os, "getloadavg") else None,
-    }
-    try:
-        for line in Path("/proc/cpuinfo").read_text().splitlines():
-            if line.startswith("model name"):
-                info["cpu"] = line.split(":", 1)[1].strip()
-                break
-    except OSError:
-        pass
-    return info
-
-
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="coarse grids and small training budgets (~15 min)")
@@ -184,7 +162,7 @@ def main(argv: list[str] | None = None) -> int:
                 flush=True,
             )
         out[task] = block
-    out["machine"] = machine_info()
+    out["machine"] = machine()
     print(json.dumps(out))
     return 0
 

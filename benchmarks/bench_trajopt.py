@@ -16,33 +16,21 @@ from __future__ import annotations
 import argparse
 import json
 import os
-import platform
+import sys
 import time
+from pathlib import Path
 from typing import Any
 
-import casadi as ca
 import numpy as np
 
-from seagul_envs.tasks import make_task
-from seagul_learn.parallel import solve_many
-from seagul_learn.results import SolveResult
-from seagul_learn.trajopt import TrajectoryOptimizer, integrator_error
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
 
-
-def machine_info() -> dict[str, Any]:
-    model = "unknown"
-    try:
-        with open("/proc/cpuinfo") as f:
-            model = next((line.split(":", 1)[1].strip() for line in f if line.startswith("model name")), model)
-    except OSError:
-        pass
-    return {
-        "cpu": model,
-        "cores": os.cpu_count(),
-        "load_avg": [round(v, 2) for v in os.getloadavg()],
-        "python": platform.python_version(),
-        "casadi": ca.__version__,
-    }
+from benchmarks._common import machine  # noqa: E402
+from seagul_envs.tasks import make_task  # noqa: E402
+from seagul_learn.parallel import solve_many  # noqa: E402
+from seagul_learn.results import SolveResult  # noqa: E402
+from seagul_learn.trajopt import TrajectoryOptimizer, integrator_error  # noqa: E402
 
 
 def bench_task(name: str, n: int, seed: int, n_accuracy: int, n_consistency: int) -> dict[str, Any]:
@@ -284,7 +272,7 @@ def bench_parallel_backends(n: int, workers: int, seed: int, repeats: int, with_
     out["cpu_count"] = os.cpu_count()
     out["load_avg_start"] = load_start
     out["load_avg_end"] = [round(v, 2) for v in os.getloadavg()]
-    out["machine"] = machine_info()
+    out["machine"] = machine()
     out["command"] = (
         f"python benchmarks/bench_trajopt.py --parallel-only --n {n} --workers {workers} --repeats {repeats}"
     )
@@ -310,7 +298,7 @@ def main() -> None:
         return
     n_acro, n_glider, n_par = (200, 50, 96) if args.quick else (1000, 250, 400)
     n_acc, n_cons = (10, 30) if args.quick else (50, 100)
-    report: dict[str, Any] = {"machine": machine_info()}
+    report: dict[str, Any] = {"machine": machine()}
     t0 = time.perf_counter()
     for name, n in (("acrobot", n_acro), ("glider", n_glider)):
         report[name] = bench_task(name, n, args.seed, n_acc, n_cons if name == "acrobot" else n_cons // 3)
