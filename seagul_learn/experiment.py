@@ -21,8 +21,9 @@ full budget, its median and 25/75 % quantiles, the median at every budget (the s
 planner-query error (``|Vhat - V|`` at a sample of the final MPC's planned terminal states, re-solved as tail
 problems: :func:`seagul_learn.closed_loop.query_errors`; median over seeds of the per-seed median and p95) and a
 paired test of the method against the closed-loop method on the per-seed success rates
-(:func:`paired_success_comparison`). LQR, PPO (if given) and the full-horizon MPC (on the coarser reference grid,
-next to every final network) run as baselines.
+(:func:`paired_success_comparison`). LQR, the saved stable-baselines3 models given (``--sb3 MODEL --sb3-algo
+PPO|SAC``: :meth:`ExperimentConfig.sb3_policies`) and the full-horizon MPC (on the coarser reference grid, next to
+every final network) run as baselines.
 
 Every stage writes its results into the run directory before the next starts, and a finished stage is never run
 again: training runs checkpoint after each round (``seagul_learn.training``), solves (training, query errors) are
@@ -58,6 +59,7 @@ import numpy as np
 
 from seagul_envs import Task, available_tasks, make_task, resolve_task
 from seagul_envs.tasks import task_label
+from seagul_learn.baselines import ALGOS
 from seagul_learn.comparison import (
     METRICS,
     PairedComparison,
@@ -66,6 +68,9 @@ from seagul_learn.comparison import (
     plot_curves_with_band,
 )
 from seagul_learn.dataset import atomic_write_text
+
+SB3_ALGOS = ALGOS
+"""The stable-baselines3 algorithms of :attr:`ExperimentConfig.sb3_algo` (those of :mod:`seagul_learn.baselines`)."""
 
 METHODS: dict[str, dict[str, Any]] = {
     "uniform": {"sampler": "uniform"},
@@ -238,9 +243,20 @@ class ExperimentConfig:
     backend: str = "local"
     """``"local"`` or ``"ray"`` for the solves."""
     ppo_model: str | None = None
-    """Optional saved stable-baselines3 PPO model to evaluate next to the MPCs."""
+    """Deprecated spelling of ``--sb3 MODEL --sb3-algo PPO``: a saved stable-baselines3 PPO model evaluated next to
+    the MPCs (labelled ``PPO``; kept so that old runs' ``experiment.json`` and scripts still work)."""
     progress: bool = True
     """Show progress bars."""
+    sb3_models: tuple[str, ...] = ()
+    """Saved stable-baselines3 model zips, each evaluated on the same grid and starts as the MPCs (with the
+    ``vecnormalize.pkl`` beside it, if any), labelled ``<algo>[<parent directory>]`` in the tables."""
+    sb3_algo: str = "PPO"
+    """The stable-baselines3 algorithm class of every ``sb3_models`` entry: ``"PPO"`` or ``"SAC"``."""
+
+    def __post_init__(self) -> None:
+        # experiment.json stores the tuple as a JSON list; a single path given as a string is one model.
+        models = self.sb3_models
+        self.sb3_models = (str(models),) if isinstance(models, str | os.PathLike) else tuple(str(m) for m in models)
 
     def validate(self) -> None:
         """Raise a ValueError naming the first bad field."""
@@ -255,6 +271,39 @@ class ExperimentConfig:
             raise ValueError(f"unknown backend {self.backend!r}; choose 'local' or 'ray'")
         if self.ppo_model is not None and not Path(self.ppo_model).exists():
             raise FileNotFoundError(f"PPO model {self.ppo_model!r} does not exist")
+        if self.sb3_algo not in SB3_ALGOS:
+            raise ValueError(f"unknown sb3_algo {self.sb3_algo!r}; choose one of {list(SB3_ALGOS)}")
+        seen: set[Path] = set()
+        for path in self.sb3_models:
+            if not Path(path).is_file():
+                raise FileNotFoundError(f"SB3 model {path!r} does not exist")
+            if Path(path).resolve() in seen:
+                raise ValueError(f"SB3 model {path!r} is given twice in sb3_models")
+            seen.add(Path(path).resolve())
+        self.sb3_policies()  # the labels can be made
+
+    def sb3_policies(self) -> list[tuple[str, str, str]]:
+        """``(label, path, algo)`` of every SB3 model to evaluate: ``ppo_model`` (label ``"PPO"``), then each of
+        ``sb3_models`` (label ``"<algo>[<parent directory>]"``; models whose parent directories share a name are
+        told apart by ``<parent>/<file stem>``, then by their position ``#k`` in ``sb3_models``).
+
+        The labels are unique, also as the file names of the stored episodes (:func:`_slug`), and a function of
+        the config only, so a resumed run finds the episodes it stored.
+        """
+        out: list[tuple[str, str, str]] = [("PPO", self.ppo_model, "PPO")] if self.ppo_model else []
+        paths = [Path(p) for p in self.sb3_models]
+        names = [p.parent.name or p.stem for p in paths]
+        clash = _clashing(names)
+        names = [
+            (f"{p.parent.name}/{p.stem}" if p.parent.name else p.name) if k in clash else n
+            for k, (p, n) in enumerate(zip(paths, names, strict=True))
+        ]
+        clash = _clashing(names)
+        names = [f"{n} #{k + 1}" if k in clash else n for k, n in enumerate(names)]
+        out += [(f"{self.sb3_algo}[{n}]", str(p), self.sb3_algo) for p, n in zip(paths, names, strict=True)]
+        if len(_clashing([label for label, _, _ in out])) > 0:
+            raise ValueError(f"cannot give the SB3 models distinct labels: {[label for label, _, _ in out]}")
+        return out
 
     def resolve_task(self) -> Task:
         """The Task of the run: the object given, or the registered name's shared task (ValueError if unknown)."""
@@ -551,12 +600,13 @@ class Experiment:
         return out
 
     def baseline_specs(self) -> tuple[list[Any], list[Any]]:
-        """``(main, reference)``: LQR (and PPO) on the main grid; the (expensive) full-horizon MPC on the coarse one."""
+        """``(main, reference)``: LQR and the SB3 models (:meth:`ExperimentConfig.sb3_policies`) on the main grid;
+        the (expensive) full-horizon MPC on the coarse one."""
         from seagul_control.evaluation import PolicySpec
 
         main = [PolicySpec("lqr", "LQR")]
-        if self.config.ppo_model:
-            main.append(PolicySpec("sb3", "PPO", self.config.ppo_model))
+        for label, path, algo in self.config.sb3_policies():
+            main.append(PolicySpec("sb3", label, path, (("algo", algo),)))
         return main, [PolicySpec("full", "full-horizon MPC")]
 
     def _episodes(self, spec: Any, starts: np.ndarray, record: bool, record_queries: bool = False) -> list[Any]:
@@ -764,7 +814,7 @@ class Experiment:
                 [
                     f"Limited-lookahead MPC with {p.mpc_horizon} steps and each network as terminal cost, for every "
                     f"seed of every method, next to clipped LQR"
-                    + (", PPO" if self.config.ppo_model else "")
+                    + "".join(f", {label}" for label, _, _ in self.config.sb3_policies())
                     + " and the full-horizon MPC (on a coarser reference grid: it solves the whole problem at every "
                     "step; every final network runs there too). Success: fraction of grid starts "
                     f"({self.task.profile.describe_success(self.task)}) at "
@@ -845,6 +895,12 @@ def _train_one(config: Any, out: Path, cache: Path, workers: int = 1, backend: s
 
 def _slug(name: str) -> str:
     return "".join(ch if ch.isalnum() else "-" for ch in name.lower())
+
+
+def _clashing(names: Sequence[str]) -> set[int]:
+    """Positions of the names whose :func:`_slug` (the stored episodes' file name) another name shares."""
+    slugs = [_slug(n) for n in names]
+    return {k for k, s in enumerate(slugs) if slugs.count(s) > 1}
 
 
 def _tail_multiple(task: Any, tau: float, stride: int) -> bool:

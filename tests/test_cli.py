@@ -108,3 +108,36 @@ def test_generate_uniform_and_validation(tmp_path, toy_solver, capsys):
     assert "200 solves" in capsys.readouterr().out
     starts = np.array([r.x_init for r in Dataset.open(next(cache.iterdir())).records()])
     assert starts.shape == (200, 4)
+
+
+# ------------------------------------------------------------------------------------------------ reproduce --sb3
+@pytest.mark.parametrize(
+    ("argv", "models", "algo", "ppo"),
+    [
+        (["--sb3", "x/model.zip", "--sb3-algo", "SAC"], ("x/model.zip",), "SAC", None),
+        (["--sb3", "a.zip", "--sb3", "b,c.zip"], ("a.zip", "b,c.zip"), "PPO", None),  # repeatable, one path each
+        (["--sb3-models", "a.zip,b.zip", "--sb3", "c.zip"], ("a.zip", "b.zip", "c.zip"), "PPO", None),
+        (["--sb3", "c.zip", "--sb3-models", "a.zip,b.zip"], ("c.zip", "a.zip", "b.zip"), "PPO", None),
+        (["--ppo", "p.zip", "--sb3", "s.zip", "--sb3-algo", "SAC"], ("s.zip",), "SAC", "p.zip"),
+        ([], (), "PPO", None),
+    ],
+)
+def test_reproduce_sb3_options_give_the_config(argv, models, algo, ppo):
+    from seagul_learn.cli import build_parser
+    from seagul_learn.commands._config import dataclass_from_args
+    from seagul_learn.experiment import ExperimentConfig
+
+    args = build_parser().parse_args(["reproduce", "acrobot", *argv])
+    config = dataclass_from_args(ExperimentConfig, args)
+    assert config == ExperimentConfig(task="acrobot", workers=2, ppo_model=ppo, sb3_models=models, sb3_algo=algo)
+
+
+def test_reproduce_sb3_errors_are_named(tmp_path, capsys):
+    with pytest.raises(SystemExit) as info:
+        main(["reproduce", "acrobot", "--sb3", "m.zip", "--sb3-algo", "A2C"])
+    assert info.value.code == 2
+    assert "argument --sb3-algo: invalid choice: 'A2C'" in capsys.readouterr().err
+    missing = str(tmp_path / "gone" / "model.zip")
+    assert main(["reproduce", "acrobot", "--preset", "smoke", "--sb3", missing, "--out", str(tmp_path / "r")]) == 2
+    assert f"SB3 model '{missing}' does not exist" in capsys.readouterr().err
+    assert not (tmp_path / "r").exists()

@@ -10,6 +10,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -156,3 +157,95 @@ def test_sigkill_then_resume_gives_the_uninterrupted_results(smoke_run: tuple[Pa
     killed = _strip_times(json.loads((out / "closed_loop" / "summary.json").read_text()))
     uninterrupted = _strip_times(json.loads((reference / "closed_loop" / "summary.json").read_text()))
     assert killed == uninterrupted
+
+
+# ------------------------------------------------------------------------------------ SB3 baselines (no training)
+def _tiny_sb3_model(path: Path, algo: str) -> str:
+    """An untrained SB3 model of the acrobot env saved at ``path`` (seconds: ``learn`` is never called)."""
+    import gymnasium as gym
+    from stable_baselines3 import PPO, SAC
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    import seagul_envs  # noqa: F401  (registers the envs)
+
+    venv = DummyVecEnv([lambda: gym.make("SeagulAcrobot-v0")])
+    if algo == "PPO":
+        model: Any = PPO("MlpPolicy", venv, n_steps=64, batch_size=32, seed=0, device="cpu")
+    else:
+        model = SAC("MlpPolicy", venv, buffer_size=100, seed=0, device="cpu")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    model.save(path)
+    return str(path)
+
+
+@pytest.fixture(scope="module")
+def sb3_models(tmp_path_factory: pytest.TempPathFactory) -> dict[str, str]:
+    root = tmp_path_factory.mktemp("sb3")
+    return {
+        "ppo": _tiny_sb3_model(root / "ppo_acrobot" / "model.zip", "PPO"),
+        "sac_a": _tiny_sb3_model(root / "sac_a" / "model.zip", "SAC"),
+        "sac_b": _tiny_sb3_model(root / "sac_b" / "model.zip", "SAC"),
+    }
+
+
+def test_sb3_models_are_baselines_next_to_lqr(sb3_models: dict[str, str], tmp_path: Path) -> None:
+    from seagul_control.evaluation import PolicySpec, build_policy
+
+    config = ExperimentConfig(
+        preset="smoke",
+        ppo_model=sb3_models["ppo"],
+        sb3_models=(sb3_models["sac_a"], sb3_models["sac_b"]),
+        sb3_algo="SAC",
+    )
+    config.validate()
+    main_specs, reference_specs = Experiment(config, tmp_path).baseline_specs()
+    assert main_specs == [
+        PolicySpec("lqr", "LQR"),
+        PolicySpec("sb3", "PPO", sb3_models["ppo"], (("algo", "PPO"),)),
+        PolicySpec("sb3", "SAC[sac_a]", sb3_models["sac_a"], (("algo", "SAC"),)),
+        PolicySpec("sb3", "SAC[sac_b]", sb3_models["sac_b"], (("algo", "SAC"),)),
+    ]
+    assert reference_specs == [PolicySpec("full", "full-horizon MPC")]
+    from stable_baselines3 import PPO, SAC
+
+    assert isinstance(build_policy("acrobot", main_specs[2]).model, SAC)  # the algo option reaches SB3Policy
+    assert isinstance(build_policy("acrobot", main_specs[1]).model, PPO)
+    # Without sb3 models the baselines are today's (an old run's stored episodes keep their names).
+    assert Experiment(ExperimentConfig(preset="smoke"), tmp_path).baseline_specs()[0] == [PolicySpec("lqr", "LQR")]
+
+
+def test_sb3_labels_stay_unique_when_parent_directories_share_a_name() -> None:
+    config = ExperimentConfig(sb3_models=("a/sac/best.zip", "b/sac/final.zip", "c/ppo/model.zip"), sb3_algo="SAC")
+    assert [label for label, _, _ in config.sb3_policies()] == ["SAC[sac/best]", "SAC[sac/final]", "SAC[ppo]"]
+    config = ExperimentConfig(sb3_models=("a/sac/model.zip", "b/sac/model.zip", "model.zip"))
+    assert [label for label, _, _ in config.sb3_policies()] == ["PPO[sac/model #1]", "PPO[sac/model #2]", "PPO[model]"]
+    assert [algo for _, _, algo in config.sb3_policies()] == ["PPO"] * 3
+
+
+def test_sb3_config_errors_name_the_bad_value(sb3_models: dict[str, str], tmp_path: Path) -> None:
+    with pytest.raises(ValueError, match=r"unknown sb3_algo 'A2C'; choose one of \['PPO', 'SAC'\]"):
+        ExperimentConfig(preset="smoke", sb3_models=(sb3_models["sac_a"],), sb3_algo="A2C").validate()
+    missing = str(tmp_path / "nowhere" / "model.zip")
+    with pytest.raises(FileNotFoundError, match=f"SB3 model '{missing}' does not exist"):
+        ExperimentConfig(preset="smoke", sb3_models=(sb3_models["sac_a"], missing), sb3_algo="SAC").validate()
+    with pytest.raises(ValueError, match="given twice"):
+        ExperimentConfig(preset="smoke", sb3_models=(sb3_models["sac_a"],) * 2).validate()
+    with pytest.raises(FileNotFoundError):
+        Experiment.create(ExperimentConfig(preset="smoke", sb3_models=(missing,)), tmp_path / "run")
+    assert not (tmp_path / "run").exists()  # refused before the run directory is made
+
+
+def test_old_experiment_file_with_ppo_model_resumes(sb3_models: dict[str, str], tmp_path: Path) -> None:
+    """An ``experiment.json`` written before ``sb3_models``/``sb3_algo`` existed loads with their defaults."""
+    from seagul_control.evaluation import PolicySpec
+
+    old = {"task": "acrobot", "preset": "smoke", "seeds": None, "workers": 1, "backend": "local",
+           "ppo_model": sb3_models["ppo"], "progress": False}  # fmt: skip
+    (tmp_path / "experiment.json").write_text(json.dumps({"config": old, "timings": {}}))
+    experiment = Experiment.resume(tmp_path, workers=1, progress=False)
+    assert experiment.config == ExperimentConfig(**old)
+    assert experiment.config.sb3_models == () and experiment.config.sb3_algo == "PPO"
+    assert experiment.baseline_specs()[0][1] == PolicySpec("sb3", "PPO", sb3_models["ppo"], (("algo", "PPO"),))
+    # A new run's stored config (a JSON list of models) round-trips to the same config.
+    config = ExperimentConfig(preset="smoke", sb3_models=(sb3_models["sac_a"],), sb3_algo="SAC")
+    assert ExperimentConfig(**json.loads(json.dumps(config.to_dict()))) == config

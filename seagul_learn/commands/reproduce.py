@@ -3,23 +3,53 @@ closed-loop value-function learning over paired seeds, closed-loop MPC statistic
 :mod:`seagul_learn.experiment`).
 
 The options are one per :class:`~seagul_learn.experiment.ExperimentConfig` field (see
-:mod:`seagul_learn.commands._config`; ``--ppo`` is the historical spelling of ``--ppo-model``, ``--no-progress`` the
-``progress`` field's negative form); ``--out`` and ``--resume`` are not config fields."""
+:mod:`seagul_learn.commands._config`; ``--ppo`` is the historical spelling of ``--ppo-model``, itself the deprecated
+spelling of ``--sb3 MODEL --sb3-algo PPO``; ``--no-progress`` the ``progress`` field's negative form); ``--out`` and
+``--resume`` are not config fields. ``sb3_models`` is the one field declared here rather than derived: ``--sb3 MODEL``
+adds one model and may be repeated, ``--sb3-models A.zip,B.zip`` adds a comma-separated list (both add to the same
+list, in the order given), e.g. ``seagul reproduce acrobot --sb3 runs/sac_a/model.zip --sb3 runs/sac_b/model.zip
+--sb3-algo SAC``."""
 
 from __future__ import annotations
 
 import argparse
 from pathlib import Path
+from typing import Any
 
 from seagul_learn.cli import Command
 from seagul_learn.commands._args import positive_int, task_argument
-from seagul_learn.commands._config import Option, add_dataclass_arguments, dataclass_from_args
+from seagul_learn.commands._config import (
+    Option,
+    add_dataclass_arguments,
+    comma_list,
+    dataclass_from_args,
+    field_docstrings,
+    plain_text,
+)
+
+
+class _AddModels(argparse.Action):
+    """Add the model(s) of each occurrence to the ones given before (the value is parsed into a tuple)."""
+
+    def __call__(
+        self,
+        parser: argparse.ArgumentParser,
+        namespace: argparse.Namespace,
+        values: Any,
+        option_string: str | None = None,
+    ) -> None:
+        setattr(namespace, self.dest, (*getattr(namespace, self.dest, ()), *values))
+
+
+def _one_model(value: str) -> tuple[str, ...]:
+    """``--sb3 MODEL``: one path (commas included)."""
+    return (value,)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare the ``reproduce`` arguments: one per :class:`~seagul_learn.experiment.ExperimentConfig` field, then
     ``--out``/``--resume``."""
-    from seagul_learn.experiment import ExperimentConfig
+    from seagul_learn.experiment import SB3_ALGOS, ExperimentConfig
 
     add_dataclass_arguments(
         parser,
@@ -38,7 +68,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
             "workers": Option(type=positive_int, default=2),
             "backend": Option(choices=("local", "ray")),
             "ppo_model": Option(aliases=("--ppo",), metavar="MODEL"),
+            "sb3_algo": Option(choices=SB3_ALGOS),
         },
+        exclude=("sb3_models",),
+    )
+    # sb3_models by hand: repeating a derived option would keep only its last value.
+    doc = plain_text(field_docstrings(ExperimentConfig)["sb3_models"])
+    models: dict[str, Any] = {"dest": "sb3_models", "action": _AddModels, "default": ()}
+    sb3_help = f"{doc} Repeatable (--sb3 A.zip --sb3 B.zip), all of the one --sb3-algo (default: none)"
+    parser.add_argument("--sb3", type=_one_model, metavar="MODEL", help=sb3_help.replace("%", "%%"), **models)
+    parser.add_argument(
+        "--sb3-models",
+        type=comma_list(str, "paths"),
+        metavar="A,B,...",
+        help="the --sb3 models as a comma-separated list (added to those of --sb3)",
+        **models,
     )
     parser.add_argument("--out", default=None, help="run directory (default runs/<task>-<timestamp>)")
     parser.add_argument("--resume", metavar="DIR", default=None, help="finish an interrupted run in DIR")
