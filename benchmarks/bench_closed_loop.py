@@ -105,6 +105,9 @@ class BenchConfig:
     query_sample: int = 30
     horizon: int = 5
     trust_region: str = "none"
+    jit: bool = False
+    """Compile the deployed MPC. Off: the shipped 3-member ensemble's NLP is 30 MB of C that ``gcc -O1`` did not
+    finish in 21 CPU-minutes (docs/closed_loop.md, fifth session); single networks compile in minutes."""
     goal_blend: float = 1.0
     """``LimitedLookaheadMPC(goal_blend=...)`` of the deployed controller (0 = off; equilibrium goals only)."""
     methods: tuple[str, ...] = tuple(METHODS)
@@ -203,11 +206,11 @@ def budget_stats(run: Path, budget: int, pretrain: int) -> dict[str, float]:
 
 # ---------------------------------------------------------------------------------------------- evaluation
 def mpc_options(bench: BenchConfig) -> tuple[tuple[str, Any], ...]:
-    """Constructor options of the deployed ``LimitedLookaheadMPC`` (compiled, as a user runs it)."""
+    """Constructor options of the deployed ``LimitedLookaheadMPC`` (compiled if ``bench.jit``)."""
     options: tuple[tuple[str, Any], ...] = (
         ("horizon", bench.horizon),
         ("trust_region", bench.trust_region),
-        ("jit", True),
+        ("jit", bench.jit),
     )
     return options + ((("goal_blend", bench.goal_blend),) if bench.goal_blend > 0 else ())
 
