@@ -47,7 +47,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._common import machine  # noqa: E402
-from seagul_control.evaluation import PolicySpec, evaluate, start_grid  # noqa: E402
+from seagul_control.evaluation import PolicySpec, evaluate, heldout_starts, start_grid  # noqa: E402
 from seagul_envs import make_task  # noqa: E402
 
 #: Learning methods: TrainConfig overrides on top of ``BenchConfig.train`` (the shipped default is ``SHIPPED``).
@@ -213,11 +213,6 @@ def mpc_options(bench: BenchConfig) -> tuple[tuple[str, Any], ...]:
         ("jit", bench.jit),
     )
     return options + ((("goal_blend", bench.goal_blend),) if bench.goal_blend > 0 else ())
-
-
-def heldout_starts(task_name: str, n: int) -> np.ndarray:
-    """``n`` starts drawn uniformly from X0 with the held-out seed (never a training stream)."""
-    return make_task(task_name).sample_x0(np.random.default_rng(20211231), n)
 
 
 def evaluate_network(

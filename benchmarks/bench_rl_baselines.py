@@ -45,7 +45,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._common import machine  # noqa: E402
-from seagul_learn.baselines import ALGOS, SB3Config, ZeroPolicy, episode_stats, heldout_starts, train_sb3  # noqa: E402
+from seagul_control.evaluation import heldout_starts  # noqa: E402
+from seagul_learn.baselines import ALGOS, SB3Config, ZeroPolicy, episode_stats, train_sb3  # noqa: E402
 
 #: Environment steps of the full run (issue 12: PPO up to 2M on the acrobot, SAC ~300k; comparable on the glider).
 FULL_STEPS: dict[str, dict[str, int]] = {

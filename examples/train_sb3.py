@@ -20,7 +20,8 @@ from __future__ import annotations
 
 import json
 
-from seagul_learn.baselines import config_from_args, episode_stats, heldout_starts, task_of_env, train_sb3
+from seagul_control.evaluation import heldout_starts
+from seagul_learn.baselines import config_from_args, episode_stats, task_of_env, train_sb3
 
 
 def main() -> None:

@@ -147,6 +147,15 @@ def start_grid(task: Task | str, n: int) -> tuple[np.ndarray, dict[str, Any]]:
     return np.array(starts), info
 
 
+#: Seed of the held-out starts every benchmark shares (never a training stream).
+HELDOUT_SEED = 20211231
+
+
+def heldout_starts(task: Task | str, n: int = 100) -> np.ndarray:
+    """``n`` starts drawn uniformly from X0 with :data:`HELDOUT_SEED` (the same for every controller and benchmark)."""
+    return resolve_task(task).sample_x0(np.random.default_rng(HELDOUT_SEED), n)
+
+
 # ------------------------------------------------------------------------------------------------ policies
 class SB3Policy:
     """A saved stable-baselines3 model behind the predictor protocol, normalising observations if needed."""

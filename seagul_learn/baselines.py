@@ -150,11 +150,6 @@ def task_of_env(env_id: str) -> Any:
         env.close()
 
 
-def heldout_starts(task: Any, n: int = 100) -> np.ndarray:
-    """``n`` starts drawn uniformly from X0 with the held-out seed shared by every benchmark (never trained on)."""
-    return task.sample_x0(np.random.default_rng(20211231), n)
-
-
 class _NormalizedPolicy:
     """A live SB3 model behind the predictor protocol (observations normalised with the current statistics)."""
 

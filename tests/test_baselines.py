@@ -7,13 +7,13 @@ import json
 import numpy as np
 import pytest
 
+from seagul_control.evaluation import heldout_starts
 from seagul_learn.baselines import (
     ZOO_DEFAULTS,
     SB3Config,
     ZeroPolicy,
     config_from_args,
     episode_stats,
-    heldout_starts,
     smoke_config,
     task_of_env,
     train_sb3,
