@@ -96,10 +96,18 @@ def _worker_init() -> None:
 
 
 def _chunks(n: int, workers: int, chunk_size: int | None) -> list[np.ndarray]:
-    if chunk_size is None:
-        # Several chunks per worker balance uneven solve times; chunks of a few solves amortise the IPC.
-        chunk_size = max(1, min(16, int(np.ceil(n / (4 * max(workers, 1))))))
-    return [np.arange(i, min(i + chunk_size, n)) for i in range(0, n, chunk_size)]
+    """Index chunks for dynamic scheduling. With ``chunk_size=None``, *guided* sizes: each chunk is a quarter of
+    the remaining work per worker, at most 16 and at least 1 solve. Early chunks of 16 amortise the IPC (~1 ms per
+    chunk); the shrinking tail keeps the workers finishing together (fixed chunks of 16 left one worker idle for up
+    to a whole chunk at the end: 13 chunks on 2 workers is 7 against 6)."""
+    w = max(workers, 1)
+    out: list[np.ndarray] = []
+    start = 0
+    while start < n:
+        size = chunk_size if chunk_size is not None else max(1, min(16, int(np.ceil((n - start) / (4 * w)))))
+        out.append(np.arange(start, min(start + size, n)))
+        start += size
+    return out
 
 
 def _check_inputs(

@@ -112,3 +112,15 @@ def test_local_pool_coexists_with_joblib_parallel() -> None:
     assert Parallel(n_jobs=2)(delayed(abs)(-i) for i in range(4)) == [0, 1, 2, 3]
     again = solve_many("acrobot", starts, workers=2, progress=False)
     assert [r.value for r in first] == [r.value for r in again]
+
+
+def test_guided_chunks_cover_every_start_once_and_shrink_at_the_end():
+    from seagul_learn.parallel import _chunks
+
+    for n, workers in [(1, 1), (7, 2), (200, 2), (1000, 8)]:
+        chunks = _chunks(n, workers, None)
+        assert np.array_equal(np.concatenate(chunks), np.arange(n))
+        sizes = [len(c) for c in chunks]
+        assert max(sizes) <= 16 and sizes == sorted(sizes, reverse=True)
+        assert sizes[-1] == 1  # the tail shrinks to single solves, so the workers finish together
+    assert [len(c) for c in _chunks(10, 2, 3)] == [3, 3, 3, 1]
