@@ -105,9 +105,9 @@ class BenchConfig:
     query_sample: int = 30
     horizon: int = 5
     trust_region: str = "none"
-    jit: bool = False
-    """Compile the deployed MPC. Off: the shipped 3-member ensemble's NLP is 30 MB of C that ``gcc -O1`` did not
-    finish in 21 CPU-minutes (docs/closed_loop.md, fifth session); single networks compile in minutes."""
+    jit: bool = True
+    """Compile the deployed MPC: networks and ensembles enter it in their matrix form, compiled unexpanded in ~10 s
+    (the fifth session's scalar form of the 3-member ensemble was 30 MB of C that gcc did not finish)."""
     goal_blend: float = 1.0
     """``LimitedLookaheadMPC(goal_blend=...)`` of the deployed controller (0 = off; equilibrium goals only)."""
     methods: tuple[str, ...] = tuple(METHODS)
@@ -268,7 +268,12 @@ def timed_steps(bench: BenchConfig, path: Path, starts: np.ndarray) -> dict[str,
     spec = PolicySpec("mpc", "timed", str(path), mpc_options(bench))
     results = evaluate(bench.task, [spec], starts, workers=1, progress=False)
     times = np.array([t for r in results for t in r.solve_times]) * 1e3
-    return {"median_ms": float(np.median(times)), "p95_ms": float(np.percentile(times, 95)), "steps": int(times.size)}
+    return {
+        "median_ms": float(np.median(times)),
+        "p95_ms": float(np.percentile(times, 95)),
+        "steps": int(times.size),
+        "success_rate": float(np.mean([r.success for r in results])),
+    }
 
 
 # ----------------------------------------------------------------------------------------------- statistics
@@ -424,6 +429,80 @@ def run_task(bench: BenchConfig, out: Path, workers: int, ship_dir: Path | None)
     return block
 
 
+def aggregate_task(bench: BenchConfig, eval_dir: Path, network: Path, budget: int) -> dict[str, Any]:
+    """The JSON block of :func:`run_task` rebuilt from stored per-seed evaluations (``seed<N>.json`` and
+    ``full-horizon.json`` in ``eval_dir``, as committed under ``benchmarks/results/``) without the training runs: the
+    shipped ``network`` is timed again in this process. Fields that need the training records (validation MSEs,
+    solve times) are absent."""
+    seeds = list(bench.seed_list or range(bench.seeds))
+    rows = []
+    for seed in seeds:
+        path = eval_dir / f"seed{seed}.json"
+        if not path.is_file():
+            raise FileNotFoundError(f"--aggregate: no evaluation {path}")
+        rows.append({**json.loads(path.read_text()), "seed": seed})
+    full = json.loads((eval_dir / "full-horizon.json").read_text())
+    task = make_task(bench.task)
+    grid_starts, _ = start_grid(task, bench.grid)
+    timing = timed_steps(bench, network, grid_starts)
+    succ = [r["success_rate"] for r in rows]
+    held = [r["heldout_success_rate"] for r in rows]
+    med = float(np.median(succ))
+    try:
+        net_rel = str(network.resolve().relative_to(ROOT))
+    except ValueError:
+        net_rel = str(network)
+    qe = [r["query_error"] for r in rows]
+    return {
+        "method": SHIPPED,
+        "budget": budget,
+        "seeds": len(seeds),
+        "seed_list": seeds,
+        "success_rate": med,
+        "full_horizon_success_rate": full["success_rate"],
+        "heldout_success_rate": float(np.median(held)),
+        "full_horizon_heldout_success_rate": full["heldout_success_rate"],
+        "network": net_rel,
+        "horizon": bench.horizon,
+        "trust_region": bench.trust_region,
+        "goal_blend": bench.goal_blend,
+        "median_ms": timing["median_ms"],
+        "p95_ms": timing["p95_ms"],
+        "timed_steps": timing["steps"],
+        "timed_success_rate": timing["success_rate"],
+        "jit": bench.jit,
+        "query_error_median": float(np.nanmedian([q["median"] for q in qe])),
+        "query_error_p95": float(np.nanmedian([q["p95"] for q in qe])),
+        "grid": f"{bench.grid}x{bench.grid}",
+        "heldout_starts": bench.heldout,
+        "budgets": [budget],
+        "methods": {
+            SHIPPED: {
+                "budgets": {
+                    str(budget): {
+                        "success_median": med,
+                        "success_q25": float(np.percentile(succ, 25)),
+                        "success_q75": float(np.percentile(succ, 75)),
+                        "success_per_seed": succ,
+                        "heldout_median": float(np.median(held)),
+                        "heldout_per_seed": held,
+                        "query_error_median": float(np.nanmedian([q["median"] for q in qe])),
+                        "query_error_p95": float(np.nanmedian([q["p95"] for q in qe])),
+                        "fallback_steps_median": float(np.median([r["fallback_steps"] for r in rows])),
+                        "evaluated_median_ms": float(np.median([r["median_ms"] for r in rows])),
+                    }
+                },
+                "smallest_budget_98pct_of_full_horizon": budget if med >= 0.98 * full["success_rate"] else None,
+            }
+        },
+        "aggregated_from": str(eval_dir),
+        "train_settings": {
+            **{k: (list(v) if isinstance(v, tuple) else v) for k, v in bench.train.items()},
+            **METHODS[SHIPPED],
+        },
+    }
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="a minutes-long check of the pipeline")
@@ -437,7 +516,17 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--trust-region", choices=("lqr", "none", "box"), default=None, help="the deployed guard")
     parser.add_argument("--goal-blend", type=float, default=None, help="the deployed MPC's goal_blend (0 = off)")
     parser.add_argument("--no-ship", action="store_true", help="do not copy the shipped network into the repository")
+    parser.add_argument(
+        "--aggregate",
+        metavar="DIR",
+        default=None,
+        help="no training: rebuild the JSON from per-seed evaluations in DIR (seed<N>.json, full-horizon.json) and "
+        "time --network again (one task, one budget: --budgets)",
+    )
+    parser.add_argument("--network", default=None, help="--aggregate: the shipped network file")
     args = parser.parse_args(argv)
+    if args.aggregate and not (args.network and args.budgets and "," not in args.budgets and "," not in args.tasks):
+        parser.error("--aggregate needs --network, a single --budgets value and a single task")
     out = Path(args.out or f"/tmp/seagul-bench-closed-loop{'-quick' if args.quick else ''}")
     ship = None if (args.quick or args.no_ship) else ROOT / "benchmarks" / "results" / "networks"
     result: dict[str, Any] = {}
@@ -460,7 +549,10 @@ def main(argv: list[str] | None = None) -> int:
             bench.goal_blend = args.goal_blend
         if args.budgets:
             bench.budgets = tuple(int(b) for b in args.budgets.split(","))
-        result[task] = run_task(bench, out / task, args.workers, ship)
+        if args.aggregate:
+            result[task] = aggregate_task(bench, Path(args.aggregate), Path(args.network), bench.budgets[0])
+        else:
+            result[task] = run_task(bench, out / task, args.workers, ship)
     result["machine"] = {**machine(), "wall_s": round(time.perf_counter() - t0, 1)}
     print(json.dumps(result))
     return 0

@@ -431,6 +431,14 @@ def evaluate(
             _run_chunk(task, spec, starts[idx], idx, record, record_queries, env_id) for spec, idx in jobs
         )
     else:
+        # A task read from a file (``--task path/file.py:factory``) lives in a module that joblib's reused worker
+        # processes cannot import (they started before it was loaded): its classes travel by value.
+        from cloudpickle import register_pickle_by_value
+
+        from seagul_envs.tasks import file_task_modules
+
+        for module in file_task_modules():
+            register_pickle_by_value(module)
         outputs = Parallel(n_jobs=int(workers), return_as="generator")(
             delayed(_run_chunk)(task, spec, starts[idx], idx, record, record_queries, env_id) for spec, idx in jobs
         )

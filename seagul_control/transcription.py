@@ -157,8 +157,11 @@ def compile_nlp_library(
     name: str,
     cache_dir: str | os.PathLike[str] | None = None,
     fingerprint: str | None = None,
+    flags: tuple[str, ...] | None = None,
 ) -> Path:
     """Generate C for the NLP functions of ``solver``, compile them once per distinct source, return the library.
+
+    ``flags``: compiler flags (default :data:`CODEGEN_FLAGS`; must make a shared library).
 
     The cache key is a hash of the generated source, the compiler and its flags (and the CasADi version, which shapes
     the generated code), so a changed model or option never loads a stale library; ``fingerprint`` (the task's
@@ -179,6 +182,7 @@ def compile_nlp_library(
     cc = find_c_compiler()
     if cc is None:
         raise RuntimeError("no C compiler found (set $CC or install gcc)")
+    flags = CODEGEN_FLAGS if flags is None else tuple(flags)
     cache = codegen_cache_dir() if cache_dir is None else Path(cache_dir)
     cache.mkdir(parents=True, exist_ok=True)
     with tempfile.TemporaryDirectory(prefix="seagul_codegen_", dir=cache) as tmp:
@@ -191,7 +195,7 @@ def compile_nlp_library(
             os.chdir(cwd)
         src = Path(tmp) / f"{name}.c"
         digest = hashlib.sha256()
-        for part in (ca.__version__, cc, *CODEGEN_FLAGS):  # type: ignore[attr-defined]  # missing from casadi.pyi
+        for part in (ca.__version__, cc, *flags):  # type: ignore[attr-defined]  # missing from casadi.pyi
             digest.update(part.encode() + b"\0")
         digest.update(src.read_bytes())
         source_hash = digest.hexdigest()[:20]
@@ -207,7 +211,7 @@ def compile_nlp_library(
                 return lib
             except OSError:  # no hard links on this filesystem: compile
                 out.unlink(missing_ok=True)
-        proc = subprocess.run([cc, *CODEGEN_FLAGS, str(src), "-o", str(out), "-lm"], capture_output=True, text=True)
+        proc = subprocess.run([cc, *flags, str(src), "-o", str(out), "-lm"], capture_output=True, text=True)
         if proc.returncode != 0:
             raise RuntimeError(f"compiling {src.name} failed: {proc.stderr[-2000:]}")
         os.replace(out, lib)
@@ -299,6 +303,7 @@ class Transcription:
         codegen: compile the NLP functions to C (cached on disk; see the module docstring); falls back to the
             interpreted solver with a warning when no compiler works.
         codegen_dir: cache directory of the compiled libraries (default :func:`codegen_cache_dir`).
+        codegen_flags: compiler flags of the library (default :data:`CODEGEN_FLAGS`).
 
     Attributes:
         state_index: ``(n + 1, nx)`` positions of ``x_k`` in the primal vector (and in ``lam_x``).
@@ -330,6 +335,7 @@ class Transcription:
         solver_options: dict[str, Any] | None = None,
         codegen: bool = False,
         codegen_dir: str | os.PathLike[str] | None = None,
+        codegen_flags: tuple[str, ...] | None = None,
     ) -> None:
         n = task.num_steps if horizon is None else int(horizon)
         if n < 1:
@@ -473,7 +479,7 @@ class Transcription:
             try:
                 # Unexpanded: the generated C then holds one function per stage-level derivative, not n copies.
                 plain = ca.nlpsol(name, solver, nlp, {**options, "expand": False})
-                self.codegen_library = compile_nlp_library(plain, name, codegen_dir, task.fingerprint())
+                self.codegen_library = compile_nlp_library(plain, name, codegen_dir, task.fingerprint(), codegen_flags)
                 lib_options = {k: v for k, v in options.items() if k != "expand"}
                 compiled = ca.nlpsol(name, solver, str(self.codegen_library), lib_options)
             except (RuntimeError, OSError) as exc:

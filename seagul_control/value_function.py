@@ -15,6 +15,11 @@ class CasadiValueFunction(Protocol):
     ``casadi_function()`` returns a CasADi Function ``(x[nx], tau[1], theta[n_params]) -> V[1]`` whose structure
     depends only on the architecture; ``casadi_parameters()`` returns the current numeric ``theta`` (weights and
     normalisation). The MPC feeds ``theta`` as NLP parameters, so a newly trained network never rebuilds a solver.
+
+    Optionally ``casadi_function(form="matrix")`` returns the same function as an MX graph of matrix products: a
+    compiled MPC (``jit=True``) then generates its lookahead unexpanded, which keeps large networks' exact Hessians
+    small and fast (``seagul_learn.ValueNetwork`` and ``ValueEnsemble`` offer it). A value function without the
+    ``form`` argument is used in its one (scalar) form.
     """
 
     task_name: str

@@ -23,7 +23,7 @@ import os
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, TypeAlias, cast
+from typing import Any, Literal, TypeAlias, cast
 
 import casadi as ca
 import numpy as np
@@ -54,6 +54,8 @@ class ValueNetworkConfig:
 
 
 _Forward: TypeAlias = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+CasadiForm: TypeAlias = Literal["scalar", "matrix"]
+"""How a value function's CasADi graph is built: ``"scalar"`` (SX) or ``"matrix"`` (MX of dense products)."""
 
 
 def _value_and_grad(forward: _Forward, x: Any, tau: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -203,9 +205,14 @@ class ValueNetwork(nn.Module):
         widths = [n_in, *self.config.hidden, 1]
         return 2 * n_in + sum(a * b + b for a, b in itertools.pairwise(widths)) + 2
 
-    def casadi_function(self) -> ca.Function:
-        """CasADi ``(x[nx], tau[1], theta[n]) -> V[1]``; depends only on the architecture, not on the weights."""
-        return _casadi_network(self.nx, self.config.hidden)
+    def casadi_function(self, form: CasadiForm = "scalar") -> ca.Function:
+        """CasADi ``(x[nx], tau[1], theta[n]) -> V[1]``; depends only on the architecture, not on the weights.
+
+        ``form="scalar"`` (default) is an SX graph, what an interpreted, expanded NLP wants; ``form="matrix"`` is
+        the same function as an MX graph of matrix-vector products, what compiled code wants: its exact Hessian is
+        a few dozen dense products (the MPC's compiled lookahead, 46 kB of C for a 3 x (2 x 64) ensemble, where
+        the scalar form's expansion was 30 MB that gcc did not finish in 21 CPU-minutes)."""
+        return _casadi_network(self.nx, self.config.hidden, _check_form(form))
 
     def to_casadi(self) -> ca.Function:
         """CasADi ``(x[nx], tau[1]) -> V[1]`` with the current weights embedded as constants."""
@@ -346,16 +353,20 @@ class ValueEnsemble(nn.Module):
         """``theta``: every member's parameters in order, then ``pessimism``."""
         return np.concatenate([*(m.casadi_parameters() for m in self.networks), [self.pessimism]])
 
-    def casadi_function(self) -> ca.Function:
-        """CasADi ``(x, tau, theta) -> mean + pessimism * spread``; depends only on the architecture and ``K``."""
-        key = (self.nx, self.config.hidden, len(self.members))
+    def casadi_function(self, form: CasadiForm = "scalar") -> ca.Function:
+        """CasADi ``(x, tau, theta) -> mean + pessimism * spread``; depends only on the architecture and ``K``.
+        ``form`` as for :meth:`ValueNetwork.casadi_function` (``"matrix"``: MX, for compiled code)."""
+        form = _check_form(form)
+        key = (self.nx, self.config.hidden, len(self.members), form)
         if key not in _ENSEMBLE_CACHE:
-            one = _casadi_network(self.nx, self.config.hidden)
+            one = _casadi_network(self.nx, self.config.hidden, form)
             n = int(one.nnz_in(2))
             k = len(self.members)
-            x, tau = ca.SX.sym("x", self.nx), ca.SX.sym("tau", 1)
-            theta = ca.SX.sym("theta", k * n + 1)
-            values = [one(x, tau, theta[i * n : (i + 1) * n]) for i in range(k)]
+            sym: Any = ca.MX if form == "matrix" else ca.SX
+            x, tau = sym.sym("x", self.nx), sym.sym("tau", 1)
+            theta = sym.sym("theta", k * n + 1)
+            # Members inlined in the matrix form: call nodes would carry zero weight sensitivities into the Hessian.
+            values = [one.call([x, tau, theta[i * n : (i + 1) * n]], form == "matrix", False)[0] for i in range(k)]
             mean = sum(values) / k
             var = sum((v - mean) ** 2 for v in values) / k
             eps = self.SPREAD_EPS
@@ -429,24 +440,32 @@ def _check_version(payload: dict[str, Any], path: Path) -> None:
         )
 
 
-_ENSEMBLE_CACHE: dict[tuple[int, tuple[int, ...], int], ca.Function] = {}
-_CASADI_CACHE: dict[tuple[int, tuple[int, ...]], ca.Function] = {}
+_ENSEMBLE_CACHE: dict[tuple[int, tuple[int, ...], int, str], ca.Function] = {}
+_CASADI_CACHE: dict[tuple[int, tuple[int, ...], str], ca.Function] = {}
 
 
-def _casadi_network(nx: int, hidden: tuple[int, ...]) -> ca.Function:
-    """Build (once per architecture) the symbolic network with ``theta`` laid out as in ``casadi_parameters``."""
-    key = (nx, hidden)
+def _check_form(form: Any) -> CasadiForm:
+    if form not in ("scalar", "matrix"):
+        raise ValueError(f"casadi_function form must be 'scalar' or 'matrix', got {form!r}")
+    return cast(CasadiForm, form)
+
+
+def _casadi_network(nx: int, hidden: tuple[int, ...], form: CasadiForm = "scalar") -> ca.Function:
+    """Build (once per architecture and form) the symbolic network with ``theta`` laid out as in
+    ``casadi_parameters``."""
+    key = (nx, hidden, form)
     if key in _CASADI_CACHE:
         return _CASADI_CACHE[key]
     n_in = nx + 1
     widths = [n_in, *hidden, 1]
     n_theta = 2 * n_in + sum(a * b + b for a, b in itertools.pairwise(widths)) + 2
-    x = ca.SX.sym("x", nx)
-    tau = ca.SX.sym("tau", 1)
-    theta = ca.SX.sym("theta", n_theta)
+    sym: Any = ca.MX if form == "matrix" else ca.SX
+    x = sym.sym("x", nx)
+    tau = sym.sym("tau", 1)
+    theta = sym.sym("theta", n_theta)
     pos = 0
 
-    def take(n: int) -> ca.SX:
+    def take(n: int) -> Any:
         nonlocal pos
         out = theta[pos : pos + n]
         pos += n

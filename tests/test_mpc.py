@@ -439,3 +439,52 @@ def test_shifted_multipliers_match_the_stage_layout(name):
     np.testing.assert_array_equal(primal[trans.state_index[0]], x)
     other = _Problem(Transcription(task, n, free_time=trans.free_time, step=trans.step), "other", False)
     assert _shift_guess(plan, other, x, 0.05, 0.5)[1:] == (None, None)  # another layout: no multipliers
+
+
+@pytest.mark.parametrize("ensemble", [False, True])
+def test_compiled_matrix_form_value_function_is_the_interpreted_one(tmp_path, ensemble):
+    """With ``jit=True`` a ``ValueNetwork``/``ValueEnsemble`` enters the lookahead in its matrix (MX) form, compiled
+    unexpanded, with the goal anchor's terms as NLP parameters: the terminal cost, the goal anchor after a new value
+    function, and the actions equal the interpreted scalar (SX) MPC's."""
+    pytest.importorskip("torch")
+    from seagul_control.mpc import find_c_compiler
+    from seagul_learn.value_network import ValueEnsemble, ValueNetwork
+
+    if find_c_compiler() is None:
+        pytest.skip("no C compiler")
+    task = make_task("acrobot")
+    rng = np.random.default_rng(4)
+
+    def make(seed):
+        if ensemble:
+            vf = ValueEnsemble(4, (16,), 2, 0.5, task_name="acrobot", seed=seed)
+            nets = vf.networks
+        else:
+            vf = ValueNetwork(4, (16, 16), task_name="acrobot", seed=seed)
+            nets = [vf]
+        for net in nets:
+            net.set_normalization(task.sample_x0(rng, 64), rng.uniform(0, 5, 64), rng.uniform(0, 50, 64))
+        return vf
+
+    a, b = make(1), make(2)
+    options = {"trust_region": "lqr", "goal_blend": 0.5, "max_iter": 50}
+    compiled = LimitedLookaheadMPC(task, a, 5, jit=True, jit_cache_dir=tmp_path, **options)
+    interpreted = LimitedLookaheadMPC(task, a, 5, jit=False, **options)
+    assert compiled._matrix_form() and not interpreted._matrix_form()
+    assert compiled.anchor_goal and compiled._lookahead.trans.codegen_library is not None
+    for vf in (a, b):
+        compiled.set_value_function(vf)
+        interpreted.set_value_function(vf)
+        for x, tau in zip(task.sample_x0(rng, 6), rng.uniform(0.6, 4.5, 6), strict=True):
+            assert compiled.terminal_cost_value(x, tau) == pytest.approx(
+                interpreted.terminal_cost_value(x, tau), rel=1e-9, abs=1e-9
+            )
+        # The anchor's terms follow the new value function (its cache is cleared): l_f-free zero at the goal.
+        assert compiled.terminal_cost_value(task.goal, 2.0) == pytest.approx(0.0, abs=1e-9)
+    x, tau = task.goal + np.array([0.1, -0.1, 0.05, 0.0]), 5.0
+    for _ in range(3):
+        u_c, info_c = compiled.act(x, tau)
+        u_i, info_i = interpreted.act(x, tau)
+        assert (info_c.source, info_c.status, info_c.iterations) == (info_i.source, info_i.status, info_i.iterations)
+        np.testing.assert_allclose(u_c, u_i, rtol=1e-6, atol=1e-6)
+        x, tau = x + 0.02 * rng.standard_normal(4), tau - 0.1  # the next state, warm-started in both
