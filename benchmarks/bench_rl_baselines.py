@@ -57,7 +57,19 @@ QUICK_STEPS: dict[str, dict[str, int]] = {
     "acrobot": {"PPO": 8_192, "SAC": 3_000},
     "glider": {"PPO": 8_192, "SAC": 3_000},
 }
-ENV_IDS = {"acrobot": "SeagulAcrobot-v0", "glider": "SeagulGlider-v0"}
+TASKS = tuple(FULL_STEPS)
+"""The tasks this benchmark trains on; each one's env is its ``task.profile.env_id``."""
+
+
+def env_id_of(task: str) -> str:
+    """The Gymnasium id of the task's own env (``profile.env_id``: ``SeagulAcrobot-v0``, ``SeagulGlider-v0``)."""
+    from seagul_envs import make_task
+
+    env_id = make_task(task).profile.env_id
+    if not env_id:
+        raise ValueError(f"task {task!r} has no registered env (profile.env_id)")
+    return str(env_id)
+
 
 #: The sweep's grid (per algorithm): the settings that matter most for these small continuous-control tasks.
 SWEEP: dict[str, dict[str, list[Any]]] = {
@@ -106,7 +118,7 @@ def sweep(task: str, algo: str, steps: int, out: Path, workers: int, quick: bool
     budget = max(steps // 5, 1)
     jobs = []
     for k, combo in enumerate(combos):
-        config = SB3Config(algo=algo, env_id=ENV_IDS[task], total_timesteps=budget, seed=100, eval_every=0, **combo)
+        config = SB3Config(algo=algo, env_id=env_id_of(task), total_timesteps=budget, seed=100, eval_every=0, **combo)
         if quick:
             config = replace(config, eval_grid=3)
         jobs.append((config, out / f"combo{k}"))
@@ -158,7 +170,7 @@ def run_task(task: str, algos: list[str], args: argparse.Namespace, out: Path, s
     from seagul_control.evaluation import start_grid
     from seagul_learn.baselines import task_of_env
 
-    env_id = ENV_IDS[task]
+    env_id = env_id_of(task)
     task_obj = task_of_env(env_id)
     steps_table = QUICK_STEPS if args.quick else FULL_STEPS
     grid, _ = start_grid(task_obj, 3 if args.quick else task_obj.profile.grid.points)
@@ -224,7 +236,7 @@ def _parse_steps(text: str) -> dict[tuple[str, str], int]:
     for item in filter(None, text.split(",")):
         key, _, value = item.partition("=")
         task, _, algo = key.partition(":")
-        if not value or algo not in ALGOS or task not in ENV_IDS:
+        if not value or algo not in ALGOS or task not in TASKS:
             raise argparse.ArgumentTypeError(f"--steps entries look like acrobot:PPO=2000000, got {item!r}")
         table[(task, algo)] = int(value)
     return table
@@ -246,8 +258,8 @@ def main(argv: list[str] | None = None) -> int:
         args.seeds = 2 if args.quick else 3
     algos = [a for a in args.algos.split(",") if a]
     tasks = [t for t in args.tasks.split(",") if t]
-    if set(algos) - set(ALGOS) or set(tasks) - set(ENV_IDS):
-        parser.error(f"--algos from {list(ALGOS)}, --tasks from {list(ENV_IDS)}")
+    if set(algos) - set(ALGOS) or set(tasks) - set(TASKS):
+        parser.error(f"--algos from {list(ALGOS)}, --tasks from {list(TASKS)}")
     out = Path(args.out or f"/tmp/seagul-bench-rl{'-quick' if args.quick else ''}")
     ship = None if (args.quick or args.no_ship) else ROOT / "benchmarks" / "results" / "models"
     t0 = time.perf_counter()

@@ -125,10 +125,8 @@ class LQRPolicy:
         self.dt = float(task.control_period if dt is None else dt)
         if not (np.isfinite(self.dt) and self.dt > 0):
             raise ValueError(f"LQRPolicy: dt must be a positive number of seconds, got {dt!r}")
-        nu = task.nu
         # An equilibrium goal (zero drift) gets the stationary LQR; otherwise track a nominal trajectory.
-        drift = np.asarray(task.dynamics(task.goal, np.zeros(nu))).ravel()
-        self.time_varying = nominal is not None or not bool(np.allclose(drift, 0.0, atol=1e-9))
+        self.time_varying = nominal is not None or not task.goal_is_equilibrium()
         self.last_info: list[dict[str, Any]] = []
         Q_task, R_task = task.profile.lqr_weights(task, self.time_varying)
         if not self.time_varying:

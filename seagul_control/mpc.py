@@ -566,11 +566,7 @@ class LimitedLookaheadMPC(_MPCBase):
         self.trust_region: TrustRegion = trust_region
         self.trust_weight = float(trust_weight)
         self.clamp = bool(clamp)
-        drift = np.asarray(task.dynamics(task.goal, np.zeros(task.nu))).ravel()
-        equilibrium = (
-            bool(np.allclose(drift, 0.0, atol=1e-9))
-            and abs(task.stage_cost_value(task.goal, np.zeros(task.nu))) < 1e-12
-        )
+        equilibrium = task.goal_is_equilibrium(cost=True)
         self.anchor_goal = equilibrium if anchor_goal is None else bool(anchor_goal)
         if self.anchor_goal and not equilibrium:
             raise ValueError(f"{self.name}: anchor_goal needs a goal that is a zero-cost equilibrium of the task")

@@ -364,8 +364,26 @@ def test_time_to_go_from_a_float32_observation_is_accepted(env_id: str) -> None:
 def test_custom_task_must_match_the_env() -> None:
     from seagul_envs.envs.acrobot import AcrobotEnv
 
-    with pytest.raises(ValueError, match="needs a acrobot task"):
+    with pytest.raises(ValueError, match="AcrobotEnv simulates AcrobotParams systems; task 'glider'"):
         AcrobotEnv(task=seagul_envs.make_task("glider"))
+
+
+def test_a_renamed_variant_of_a_builtin_system_gets_its_env_by_parameter_class() -> None:
+    """The built-in env is chosen by the task's ``profile.env_id`` and parameter class, never by its name."""
+    import dataclasses
+
+    from seagul_envs.envs.acrobot import AcrobotEnv
+    from seagul_envs.envs.task_env import TaskEnv, env_class_for
+    from seagul_envs.tasks import AcrobotParams, make_acrobot_task
+
+    heavy = dataclasses.replace(make_acrobot_task(AcrobotParams(m2=1.5)), name="acrobot_heavy")
+    assert env_class_for(heavy) is AcrobotEnv
+    env = seagul_envs.make_env(heavy)
+    assert isinstance(env.unwrapped, AcrobotEnv) and env.unwrapped.task is heavy
+    env.reset(seed=0)
+    # Without the env id the same task is simulated by the generic env.
+    plain = dataclasses.replace(heavy, profile=dataclasses.replace(heavy.profile, env_id=None))
+    assert env_class_for(plain) is TaskEnv
 
 
 @pytest.mark.parametrize("env_id", IDS)

@@ -214,7 +214,9 @@ def test_the_transcription_hands_the_task_fingerprint_to_the_compiled_solver_cac
     """The acrobot's libraries take long to compile: record what would be compiled, then solve interpreted."""
     seen: list[tuple[str, str | None]] = []
 
-    def record(solver: ca.Function, name: str, cache_dir: Any = None, fingerprint: str | None = None) -> Path:
+    def record(
+        solver: ca.Function, name: str, cache_dir: Any = None, fingerprint: str | None = None, flags: Any = None
+    ) -> Path:
         seen.append((name, fingerprint))
         raise RuntimeError("not compiled in this test")
 

@@ -6,6 +6,7 @@ import numpy as np
 
 from seagul_envs.envs.base import TaskSimulatorEnv, resolve_task
 from seagul_envs.rendering import acrobot_frame
+from seagul_envs.tasks.acrobot import AcrobotParams
 from seagul_envs.tasks.base import Task
 
 
@@ -67,6 +68,9 @@ class AcrobotEnv(TaskSimulatorEnv):
     ``max_substep=0.001`` or less for evaluation (error ~1e-2 at 5 ms there, RK4 error falls as the substep^4).
     """
 
+    params_class: type = AcrobotParams
+    """The parameter class of the tasks this env simulates (any name: variants of the system included)."""
+
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}  # noqa: RUF012 (Gymnasium convention)
 
     def __init__(
@@ -77,7 +81,10 @@ class AcrobotEnv(TaskSimulatorEnv):
         max_substep: float | None = None,
     ) -> None:
         super().__init__(
-            resolve_task(task, "acrobot", type(self).__name__), dt=dt, render_mode=render_mode, max_substep=max_substep
+            resolve_task(task, "acrobot", type(self).__name__, self.params_class),
+            dt=dt,
+            render_mode=render_mode,
+            max_substep=max_substep,
         )
 
     def _render_frame(self) -> np.ndarray:

@@ -64,10 +64,18 @@ class BufferedFunction:
         self._eval()
 
 
-def resolve_task(task: Task | None, name: str, env_name: str) -> Task:
-    """The registered task ``name``, or a custom :class:`Task` of the same system; anything else is an error."""
+def resolve_task(task: Task | None, name: str, env_name: str, params_class: type | None = None) -> Task:
+    """The registered task ``name``, or any :class:`Task` of the same system: one whose parameters are a
+    ``params_class`` (whatever its name, e.g. a renamed variant); without ``params_class``, a task named ``name``.
+    Anything else is a ValueError naming both."""
     task = make_task(name) if task is None else task
-    if task.name != name:
+    if params_class is not None:
+        if not isinstance(task.params, params_class):
+            raise ValueError(
+                f"{env_name} simulates {params_class.__name__} systems; task {task.name!r} has parameters of type "
+                f"{type(task.params).__name__} (use seagul_envs.make_env(task) for any other system)"
+            )
+    elif task.name != name:
         raise ValueError(f"{env_name} needs a {name} task, got {task.name!r}")
     return task
 

@@ -7,6 +7,7 @@ import numpy as np
 from seagul_envs.envs.base import TaskSimulatorEnv, resolve_task
 from seagul_envs.rendering import glider_frame
 from seagul_envs.tasks.base import Task
+from seagul_envs.tasks.glider import GliderParams
 
 
 class GliderEnv(TaskSimulatorEnv):
@@ -70,6 +71,9 @@ class GliderEnv(TaskSimulatorEnv):
     substep (default ``task.max_sim_substep`` = 5 ms; one 25 ms step then matches a 1e-12 reference to < 1e-6).
     """
 
+    params_class: type = GliderParams
+    """The parameter class of the tasks this env simulates (any name: variants of the system included)."""
+
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 40}  # noqa: RUF012 (Gymnasium convention)
 
     def __init__(
@@ -80,7 +84,10 @@ class GliderEnv(TaskSimulatorEnv):
         max_substep: float | None = None,
     ) -> None:
         super().__init__(
-            resolve_task(task, "glider", type(self).__name__), dt=dt, render_mode=render_mode, max_substep=max_substep
+            resolve_task(task, "glider", type(self).__name__, self.params_class),
+            dt=dt,
+            render_mode=render_mode,
+            max_substep=max_substep,
         )
         self._trail: list[tuple[float, float]] = []
 

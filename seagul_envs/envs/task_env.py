@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import importlib
 from collections.abc import Callable
 from typing import Any
 
@@ -10,16 +11,10 @@ import numpy as np
 from gymnasium.envs.registration import EnvSpec
 
 from seagul_envs.envs.base import TaskSimulatorEnv
-from seagul_envs.tasks import AcrobotParams, GliderParams, Task, make_task, shared_task, validate_task
+from seagul_envs.tasks import Task, make_task, shared_task, validate_task
 
 Renderer = Callable[[Task, np.ndarray, np.ndarray, float], np.ndarray]
 """``renderer(task, state, last_action, time_to_go) -> (H, W, 3) uint8 frame``: how a custom task draws itself."""
-
-BUILTIN_ENVS: dict[str, tuple[str, type]] = {
-    "acrobot": ("SeagulAcrobot-v0", AcrobotParams),
-    "glider": ("SeagulGlider-v0", GliderParams),
-}
-"""Built-in task name -> (its analytic env's Gymnasium id, the parameter class that marks a task of that system)."""
 
 
 class TaskEnv(TaskSimulatorEnv):
@@ -109,14 +104,20 @@ class TaskEnv(TaskSimulatorEnv):
 
 
 def env_class_for(task: Task) -> type[TaskSimulatorEnv]:
-    """The env class that simulates ``task``: a built-in system's own class (it renders, and the glider's has its
-    elevator stop), recognised by name *and* parameter class, else the generic :class:`TaskEnv`."""
-    from seagul_envs.envs.acrobot import AcrobotEnv
-    from seagul_envs.envs.glider import GliderEnv
-
-    builtin = BUILTIN_ENVS.get(task.name)
-    if builtin is not None and isinstance(task.params, builtin[1]):
-        return {"acrobot": AcrobotEnv, "glider": GliderEnv}[task.name]
+    """The env class that simulates ``task``: the class registered under ``task.profile.env_id`` when it simulates
+    systems of the task's parameter class (its ``params_class``: a built-in system and its variants, which render
+    and, for the glider, have the elevator stop), else the generic :class:`TaskEnv`. Nothing is looked up by name."""
+    env_id = task.profile.env_id
+    if not env_id or env_id not in gym.registry:
+        return TaskEnv
+    entry = gym.registry[env_id].entry_point
+    if isinstance(entry, str):
+        module, _, attr = entry.partition(":")
+        entry = getattr(importlib.import_module(module), attr)
+    params_class = getattr(entry, "params_class", None)
+    if isinstance(entry, type) and issubclass(entry, TaskSimulatorEnv) and params_class is not None:
+        if isinstance(task.params, params_class):
+            return entry
     return TaskEnv
 
 
@@ -147,7 +148,7 @@ def make_env(task: Task | str, **kwargs: Any) -> gym.Env:
         raise TypeError(f"make_env needs a seagul_envs Task or a task name, got {type(task).__name__}")
     cls = env_class_for(task)
     if cls is not TaskEnv:
-        env_id = task.profile.env_id or BUILTIN_ENVS[task.name][0]
+        env_id = str(task.profile.env_id)
         return gym.make(env_id, **kwargs) if task is shared_task(task.name) else gym.make(env_id, task=task, **kwargs)
     validate_task(task)
     from seagul_envs.registration import TASK_ENV_IDS, task_env_id
