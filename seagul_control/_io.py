@@ -17,6 +17,7 @@ validation sets (``cache_dir()``) are cached there.
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
 from pathlib import Path
 
@@ -42,21 +43,36 @@ def cache_dir(subdir: str = "") -> Path:
     return root / subdir if subdir else root
 
 
+def _current_umask() -> int:
+    mask = os.umask(0o022)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _current_umask()
+
+
 def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
     """Write ``data`` to ``path`` atomically: a ``.tmp-*`` file beside it, fsync, rename, fsync the directory.
 
     A reader sees the old file or the complete new one, never a torn one, whenever the writer is killed; on an error
     the temporary file is removed, the old file (if any) is left untouched and the error propagates. Parent
-    directories are created.
+    directories are created. The file gets the permissions ``open`` would give it (0666 less the umask; an existing
+    file keeps its own), not the owner-only mode of the temporary file.
     """
     path = Path(path)
     path.parent.mkdir(parents=True, exist_ok=True)
+    try:
+        mode = stat.S_IMODE(path.stat().st_mode)
+    except OSError:
+        mode = 0o666 & ~_UMASK
     fd, tmp = tempfile.mkstemp(prefix=TEMP_PREFIX, dir=path.parent)
     try:
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
             os.fsync(f.fileno())
+        os.chmod(tmp, mode)
         os.replace(tmp, path)
     except BaseException:
         Path(tmp).unlink(missing_ok=True)

@@ -256,12 +256,12 @@ def default_horizon(task: Task) -> int:
     return task.profile.default_horizon(task)
 
 
-def episode_env(task: Task) -> Any:
-    """The Gymnasium env the task's episodes run in: ``seagul_envs.make_env(task)`` (a registered task's shared
-    object gives exactly ``gym.make`` of its id; any other Task, a variant included, is simulated as given)."""
+def episode_env(task: Task, **kwargs: Any) -> Any:
+    """The Gymnasium env the task's episodes run in: ``seagul_envs.make_env(task, **kwargs)`` (a registered task's
+    shared object gives exactly ``gym.make`` of its id; any other Task, a variant included, is simulated as given)."""
     from seagul_envs.envs.task_env import make_env
 
-    return make_env(task)
+    return make_env(task, **kwargs)
 
 
 # ------------------------------------------------------------------------------------------------ episodes
@@ -295,19 +295,24 @@ def run_policy_episode(
     record: bool = False,
     label: str = "",
     env_id: str | None = None,
+    frames: list[np.ndarray] | None = None,
 ) -> tuple[EpisodeResult, list[Any]]:
     """One episode of a predictor object from ``x0`` in the task's env; also returns its per-step solver infos.
 
     The env is ``gym.make(env_id)`` if given, else :func:`episode_env` (``make_env(task)``). The infos are the
     MPC's :class:`~seagul_control.mpc.MPCStepInfo` of each step (empty for policies without ``stats``); they carry
-    the planned terminal states (the planner's queries of the value function).
+    the planned terminal states (the planner's queries of the value function). With a list as ``frames``, the env
+    runs with ``render_mode="rgb_array"`` and every frame (the start, then one per step) is appended to it.
     """
     import gymnasium as gym
 
     import seagul_envs  # noqa: F401  (registers the envs)
 
-    env = gym.make(env_id) if env_id else episode_env(task)
+    render: dict[str, Any] = {} if frames is None else {"render_mode": "rgb_array"}
+    env = gym.make(env_id, **render) if env_id else episode_env(task, **render)
     obs, info = env.reset(options={"state": np.asarray(x0, dtype=float)})
+    if frames is not None:
+        frames.append(np.asarray(env.render()))
     stats = getattr(policy, "stats", None)
     first_stat = len(stats) if stats is not None else 0
     states = [info["state"].tolist()] if record else []
@@ -321,6 +326,8 @@ def run_policy_episode(
         done = terminated or truncated
         if record:
             states.append(info["state"].tolist())
+        if frames is not None:
+            frames.append(np.asarray(env.render()))
     env.close()
     x = np.asarray(info["state"], dtype=float)
     distance = float(np.linalg.norm(x - task.goal))

@@ -20,6 +20,7 @@ import base64
 import csv
 import html
 import importlib.metadata
+import io
 import json
 import math
 import os
@@ -109,6 +110,78 @@ def write_outputs(
     if figure is not None and any(r.states for r in results):
         paths["trajectories"] = plot_trajectories(results, out / "trajectories.png", figure, task)
     return paths
+
+
+# ------------------------------------------------------------------------------------------------ animations
+def controller_animation(
+    task: Task | str,
+    policies: Sequence[tuple[str, Any]],
+    x0: np.ndarray,
+    path: Path,
+    *,
+    env_id: str | None = None,
+    fps: float | None = None,
+    max_width: int = 320,
+) -> tuple[Path, list[EpisodeResult]]:
+    """One closed-loop episode per controller from the same start ``x0``, side by side, as an animated GIF.
+
+    ``policies`` are ``(label, predictor)`` pairs (anything with SB3's ``predict``: the MPCs, LQR, an
+    :class:`~seagul_control.evaluation.SB3Policy`). Each runs in the task's env (or ``gym.make(env_id)``) with
+    ``render_mode="rgb_array"``; its frames are scaled to ``max_width`` pixels, a label strip above each panel
+    names the controller and, once its episode ends, whether it succeeded and its cost; an episode that ends
+    early holds its last frame. ``fps`` defaults to the env's control rate (real time). Written atomically.
+    Returns the path and the episodes (for captions and tables).
+    """
+    from PIL import Image, ImageDraw
+
+    from seagul_control._io import atomic_write_bytes
+    from seagul_control.evaluation import run_policy_episode
+
+    task = resolve_task(task)
+    if not policies:
+        raise ValueError("controller_animation needs at least one (label, policy) pair")
+    panels: list[list[Image.Image]] = []
+    episodes: list[EpisodeResult] = []
+    for label, policy in policies:
+        frames: list[np.ndarray] = []
+        episode, _ = run_policy_episode(
+            task, policy, np.asarray(x0, dtype=float), label=label, env_id=env_id, frames=frames
+        )
+        episodes.append(episode)
+        images = []
+        for frame in frames:
+            img = Image.fromarray(np.asarray(frame, dtype=np.uint8))
+            if img.width > max_width:
+                img = img.resize((max_width, round(img.height * max_width / img.width)), Image.Resampling.LANCZOS)
+            images.append(img)
+        panels.append(images)
+    n = max(len(p) for p in panels)
+    strip = 34
+    width = sum(p[0].width for p in panels)
+    height = max(p[0].height for p in panels) + strip
+    out: list[Image.Image] = []
+    for k in range(n):
+        canvas = Image.new("RGB", (width, height), "white")
+        draw = ImageDraw.Draw(canvas)
+        x = 0
+        for images, episode in zip(panels, episodes, strict=True):
+            img = images[min(k, len(images) - 1)]
+            canvas.paste(img, (x, strip))
+            status = ""
+            if k >= len(images) - 1:
+                status = f"{'success' if episode.success else 'failure'}, cost {episode.cost:.1f}"
+            draw.text((x + 6, 3), episode.policy, fill="black")
+            draw.text((x + 6, 18), status, fill="darkgreen" if episode.success else "darkred")
+            x += img.width
+        out.append(canvas.convert("P", palette=Image.Palette.ADAPTIVE, colors=128))
+    rate = fps if fps is not None else 1.0 / float(task.control_period)
+    buffer = io.BytesIO()
+    durations = [round(1000.0 / rate)] * (n - 1) + [1500]  # hold the final frame before the loop restarts
+    out[0].save(buffer, format="GIF", save_all=True, append_images=out[1:], duration=durations, loop=0)
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    atomic_write_bytes(path, buffer.getvalue())
+    return path, episodes
 
 
 # ------------------------------------------------------------------------------------------------ evaluation figures

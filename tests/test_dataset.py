@@ -119,6 +119,21 @@ def test_atomic_writes_round_trip_and_leave_no_temp_files(tmp_path):
     assert seagul_learn.dataset.atomic_write_text is atomic_write_text
 
 
+def test_atomic_writes_get_the_umask_mode_and_keep_an_existing_files_mode(tmp_path):
+    """Not the temporary file's owner-only 0600: reports and networks stay readable as ``open`` would make them."""
+    import os
+    import stat
+
+    mask = os.umask(0o022)
+    os.umask(mask)
+    target = tmp_path / "report.html"
+    atomic_write_text(target, "new")
+    assert stat.S_IMODE(target.stat().st_mode) == 0o666 & ~mask
+    target.chmod(0o640)
+    atomic_write_text(target, "again")
+    assert stat.S_IMODE(target.stat().st_mode) == 0o640
+
+
 @pytest.mark.parametrize("failing", ["write", "fsync", "replace"])
 def test_failed_atomic_write_leaves_the_old_file_intact(tmp_path, monkeypatch, failing):
     target = tmp_path / "state.json"

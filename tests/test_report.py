@@ -129,3 +129,26 @@ def test_library_versions_names_core_libraries():
     versions = library_versions()
     for name in ("python", "casadi", "torch", "gymnasium", "numpy"):
         assert versions[name] and versions[name] != "not installed"
+
+
+def test_controller_animation_is_one_panel_per_controller_from_the_same_start(tmp_path) -> None:
+    """The GIF has a frame per step (plus the start) and one panel per controller; each panel is its own episode."""
+    from PIL import Image
+
+    from seagul_control.lqr import LQRPolicy
+    from seagul_envs import make_task
+    from seagul_learn.baselines import ZeroPolicy
+    from seagul_learn.report import controller_animation
+
+    task = make_task("acrobot")
+    x0 = task.goal + np.array([0.05, -0.05, 0.0, 0.0])
+    path, episodes = controller_animation(
+        task, [("LQR", LQRPolicy(task)), ("zero", ZeroPolicy(task.nu))], x0, tmp_path / "a.gif", max_width=200
+    )
+    with Image.open(path) as im:
+        assert im.format == "GIF" and im.n_frames == episodes[0].steps + 1
+        assert im.size[0] == 400
+    assert [e.policy for e in episodes] == ["LQR", "zero"]
+    assert episodes[0].success and not episodes[1].success  # LQR balances from near the top; doing nothing falls
+    with pytest.raises(ValueError, match="at least one"):
+        controller_animation(task, [], x0, tmp_path / "b.gif")
