@@ -1,0 +1,195 @@
+"""Every controller of a task on the same starts, in one table (issue 12): what each cost to make and how it controls.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_controllers.py [--task acrobot] [--latency-starts 20] [--quick]
+
+Rows: the learned limited-lookahead MPC of the closed-loop benchmark (``benchmarks/results/closed_loop.json``: its
+NLP solves, median success over seeds on the grid and the held-out starts, its step latency), LQR and the
+full-horizon MPC (measured here on the same 20 x 20 grid and 100 held-out X0 starts, seed 20211231), and PPO/SAC
+from ``benchmarks/results/rl_baselines.json`` when that file exists (environment steps, training wall time, median
+success over seeds). A row whose source has not been run says so (``null`` in the JSON, "not run" in the table);
+nothing is filled in by hand.
+
+Latency is the controller's own computation per step (the MPCs' solver wall time; LQR's and SB3's ``predict``),
+median and 95th percentile, measured in this process on the first ``--latency-starts`` grid starts with nothing
+else running in it. The table is printed as Markdown on stderr; the last line of stdout is one JSON object
+``{"task", "rows": [{"method", "nlp_solves", "env_steps", "train_wall_s", "grid_success", "heldout_success",
+"median_ms", "p95_ms", "source"}], "machine"}``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks._common import machine  # noqa: E402
+from seagul_control.evaluation import (  # noqa: E402
+    PolicySpec,
+    build_policy,
+    evaluate,
+    heldout_starts,
+    run_policy_episode,
+    start_grid,
+)
+from seagul_envs import make_task  # noqa: E402
+
+RESULTS = ROOT / "benchmarks" / "results"
+
+
+def latency(task: Any, spec: PolicySpec, starts: np.ndarray) -> dict[str, float]:
+    """Median and p95 of the per-step computation time of ``spec``'s controller over episodes from ``starts``."""
+    policy = build_policy(task, spec)
+    times: list[float] = []
+    for x0 in starts:
+        original = policy.predict
+
+        def timed(*args: Any, original: Any = original, **kwargs: Any) -> Any:
+            t = time.perf_counter()
+            out = original(*args, **kwargs)
+            times.append(time.perf_counter() - t)
+            return out
+
+        policy.predict = timed  # type: ignore[method-assign]
+        try:
+            run_policy_episode(task, policy, x0)
+        finally:
+            policy.predict = original  # type: ignore[method-assign]
+    ms = np.asarray(times) * 1e3
+    return {"median_ms": float(np.median(ms)), "p95_ms": float(np.percentile(ms, 95)), "steps": int(ms.size)}
+
+
+def measured_row(
+    task: Any, method: str, spec: PolicySpec, starts: np.ndarray, n_grid: int, lat: np.ndarray, stored: Path | None
+) -> dict:
+    """Success on the grid and held-out starts (or, if ``stored`` exists, the stored evaluation of exactly these
+    starts), and latency measured here."""
+    if stored is not None and stored.is_file():
+        row = json.loads(stored.read_text())
+        grid_success, held_success = row["success_rate"], row["heldout_success_rate"]
+        source = f"success: {stored.relative_to(ROOT)}; latency: measured here"
+    else:
+        results = evaluate(task, [spec], starts, workers=2, progress=False)
+        grid, held = results[:n_grid], results[n_grid:]
+        grid_success = float(np.mean([r.success for r in grid]))
+        held_success = float(np.mean([r.success for r in held]))
+        source = "measured here"
+    return {
+        "method": method,
+        "nlp_solves": 0,
+        "env_steps": 0,
+        "train_wall_s": 0.0,
+        "grid_success": grid_success,
+        "heldout_success": held_success,
+        **latency(task, spec, lat),
+        "source": source,
+    }
+
+
+def learned_row(task_name: str) -> dict[str, Any]:
+    path = RESULTS / "closed_loop.json"
+    if not path.is_file():
+        return {"method": "learned MPC", "source": "not run (benchmarks/bench_closed_loop.py)"}
+    block = json.loads(path.read_text()).get(task_name)
+    if not block:
+        return {"method": "learned MPC", "source": f"not run for {task_name}"}
+    train = block.get("train_settings", {})
+    episodes = int(train.get("cl_episodes", 0))
+    tail_solves = int(block["budget"]) - int(train.get("cl_uniform_solves", 0))
+    rounds = max(0, tail_solves // int(train.get("solves_per_round", 50)))
+    steps_per_episode = round(make_task(task_name).tau_nominal / make_task(task_name).control_period)
+    return {
+        "method": f"learned {block['horizon']}-step MPC ({block['method']}, {block['seeds']} seeds)",
+        "nlp_solves": int(block["budget"]),
+        # The closed-loop sampler's collection episodes are the only environment steps of its training.
+        "env_steps": rounds * episodes * steps_per_episode if block["method"].startswith("closed-loop") else 0,
+        "train_wall_s": block.get("wall_s"),
+        "grid_success": block["success_rate"],
+        "heldout_success": block["heldout_success_rate"],
+        "median_ms": block["median_ms"],
+        "p95_ms": block["p95_ms"],
+        "source": "benchmarks/results/closed_loop.json",
+    }
+
+
+def rl_rows(task_name: str) -> list[dict[str, Any]]:
+    path = RESULTS / "rl_baselines.json"
+    data = json.loads(path.read_text()).get(task_name, {}) if path.is_file() else {}
+    rows = []
+    for algo in ("ppo", "sac"):
+        block = data.get(algo)
+        if not block:
+            rows.append({"method": algo.upper(), "source": "not run (benchmarks/bench_rl_baselines.py)"})
+            continue
+        rows.append(
+            {
+                "method": f"{algo.upper()} ({block['seeds']} seeds)",
+                "nlp_solves": 0,
+                "env_steps": block["env_steps"],
+                "train_wall_s": block["train_wall_s"],
+                "grid_success": block["success_rate"],
+                "heldout_success": block["heldout_success_rate"],
+                "median_ms": block.get("median_ms"),
+                "p95_ms": block.get("p95_ms"),
+                "source": "benchmarks/results/rl_baselines.json",
+            }
+        )
+    return rows
+
+
+def markdown(rows: list[dict[str, Any]]) -> str:
+    def cell(row: dict[str, Any], key: str, fmt: str) -> str:
+        value = row.get(key)
+        if value is None:
+            return "not run" if key == "grid_success" else "—"
+        return format(value, fmt)
+
+    lines = [
+        "| method | NLP solves | env steps | training wall time (s) | grid success | held-out success "
+        "| step latency median / p95 (ms) |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for r in rows:
+        lat = "—" if r.get("median_ms") is None else f"{r['median_ms']:.3g} / {r['p95_ms']:.3g}"
+        lines.append(
+            f"| {r['method']} | {cell(r, 'nlp_solves', ',')} | {cell(r, 'env_steps', ',')} | "
+            f"{cell(r, 'train_wall_s', '.0f')} | {cell(r, 'grid_success', '.1%')} | "
+            f"{cell(r, 'heldout_success', '.1%')} | {lat} |"
+        )
+    return "\n".join(lines)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--task", default="acrobot")
+    parser.add_argument("--latency-starts", type=int, default=20, help="grid starts whose steps are timed")
+    parser.add_argument("--quick", action="store_true", help="a 3 x 3 grid, 5 held-out starts, no full horizon")
+    args = parser.parse_args(argv)
+    task = make_task(args.task)
+    grid_starts, _ = start_grid(task, 3 if args.quick else task.profile.grid.points)
+    starts = np.vstack([grid_starts, heldout_starts(task, 5 if args.quick else 100)])
+    n_grid = grid_starts.shape[0]
+    lat = grid_starts[:: max(1, n_grid // max(1, args.latency_starts))][: args.latency_starts]
+    rows = [learned_row(args.task), measured_row(task, "LQR", PolicySpec("lqr", "lqr"), starts, n_grid, lat, None)]
+    if not args.quick:
+        # The closed-loop benchmark's evaluation of the full horizon on these very starts, when committed.
+        stored = RESULTS / "closed_loop_b2000" / "full-horizon.json" if args.task == "acrobot" else None
+        spec = PolicySpec("full", "full")
+        rows.append(measured_row(task, "full-horizon MPC", spec, starts, n_grid, lat, stored))
+    rows += rl_rows(args.task)
+    print(markdown(rows), file=sys.stderr)
+    print(json.dumps({"task": args.task, "rows": rows, "machine": machine()}))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
