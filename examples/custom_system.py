@@ -194,12 +194,24 @@ class Config:
 
     parallel_solves: int = 8
     """Starts solved by solve_many with 1 and 2 workers and with Ray."""
-    budget: int = 100
+    budget: int = 1000
     """Solves of the training run (after 10 pretraining solves)."""
-    train_steps_per_round: int = 500
-    """Adam steps after each round of 10 solves."""
+    uniform_solves: int = 500
+    """Of the budget: uniform draws from X0 before the closed-loop rounds."""
+    solves_per_round: int = 50
+    """Solves per training round."""
+    train_steps_per_round: int = 1000
+    """Adam steps after each round."""
     sobolev_weight: float = 1.0
     """Weight of the dual-gradient (Sobolev) term."""
+    hidden: tuple[int, ...] = (64, 64)
+    """Hidden widths of the value network."""
+    cl_episodes: int = 10
+    """Closed-loop episodes from X0 per round (the planner's queries are the round's candidates)."""
+    refit_steps: int = 10000
+    """Adam steps of each refit of the buffer (the DAgger rounds' collectors and the final network)."""
+    refit_ensemble: int = 3
+    """Members of the final refit (deployed as their mean)."""
     grid: int = 5
     """Points per axis of the closed-loop grid of seagul evaluate."""
     ray: bool = True
@@ -269,12 +281,30 @@ def main(cfg: Config) -> None:
         print(f"  {label}: {sum(r.success for r in results)}/{len(results)} solved, identical to 1 worker: {same}")
 
     # 4. SEAGuL training on the Task object (not a registered name); config.json stores its name and fingerprint.
+    #    The closed-loop sampler (the recipe of the acrobot's closed-loop benchmark, scaled to this task): uniform
+    #    draws first, then rounds at the planned terminal states of the MPC itself, collected with the "lqr"-guarded
+    #    MPC for two rounds and then with the unguarded MPC on a refit of everything so far; the final network is a
+    #    refit ensemble.
     config = TrainConfig(
         task=task,
-        sampler="adversarial",
+        sampler="closed-loop",
         budget=cfg.budget,
+        solves_per_round=cfg.solves_per_round,
         train_steps_per_round=cfg.train_steps_per_round,
         sobolev_weight=cfg.sobolev_weight,
+        hidden=cfg.hidden,
+        renormalize=True,
+        grad_label_max=10.0,
+        refit_steps=cfg.refit_steps,
+        refit_ensemble=cfg.refit_ensemble,
+        ensemble_pessimism=0.0,
+        cl_uniform_solves=cfg.uniform_solves,
+        cl_episodes=cfg.cl_episodes,
+        cl_trust_region="none",
+        cl_warmup_rounds=2,
+        cl_collect_refit=True,
+        cl_selection="random",
+        cl_jit=False,
         workers=cfg.workers,
         solver_options=solver_options,
         cache_dir=str(out / "cache"),
@@ -289,10 +319,10 @@ def main(cfg: Config) -> None:
         f"mse_all_knots {last.mse_all_knots:.3g}"
     )
 
-    # 5. The network as terminal cost of a limited-lookahead MPC (paper Eq. 3 as written: no guard), in a plain
-    #    Gymnasium loop from hanging at rest.
+    # 5. The network as terminal cost of a limited-lookahead MPC with the library's default guard (trust_region
+    #    "lqr": Vhat + l_f), in a plain Gymnasium loop from hanging at rest.
     horizon = task.profile.default_horizon(task)
-    policy = LimitedLookaheadMPC(task, trained.network, horizon=horizon, jit=False, trust_region="none")
+    policy = LimitedLookaheadMPC(task, trained.network, horizon=horizon, jit=False)
     start = time.perf_counter()
     env = make_env(task)
     obs, info = env.reset(options={"state": np.zeros(4)})
@@ -305,7 +335,7 @@ def main(cfg: Config) -> None:
     x_end = info["state"]
     fallbacks = sum(s.source != "solver" for s in policy.stats)
     print(
-        f"learned {horizon}-step MPC (no guard) from hanging at rest: return {episode_return:.2f}, final state "
+        f"learned {horizon}-step MPC (lqr guard) from hanging at rest: return {episode_return:.2f}, final state "
         f"{np.round(x_end, 3).tolist()}, success {task.profile.is_success(task, x_end, terminated)}, {fallbacks} "
         f"of {len(policy.stats)} steps fell back (no converged solve), {time.perf_counter() - start:.0f} s"
     )
@@ -349,6 +379,18 @@ if __name__ == "__main__":
     if args.test:
         small = replace(cfg.params, validation_grid=2, validation_draws=0)
         cfg = replace(
-            cfg, parallel_solves=2, budget=4, train_steps_per_round=20, grid=1, full_horizon=False, params=small
+            cfg,
+            parallel_solves=2,
+            budget=6,
+            uniform_solves=2,
+            solves_per_round=2,
+            train_steps_per_round=20,
+            hidden=(16,),
+            cl_episodes=1,
+            refit_steps=20,
+            refit_ensemble=2,
+            grid=1,
+            full_horizon=False,
+            params=small,
         )
     main(cfg)
