@@ -210,7 +210,8 @@ def train_sb3(
     """Train ``config`` into ``out``; returns the run's summary (also ``curve.json``).
 
     The learning curve's points (``curve``) hold ``env_steps``, ``wall_s`` (training time so far, evaluation
-    excluded), ``success_rate`` and ``mean_return`` on the grid; ``on_point`` sees each as it is made.
+    excluded), ``success_rate`` and ``mean_return`` on the grid; ``on_point`` sees each as it is made, and
+    ``curve.partial.json`` holds the points so far until the run completes.
     """
     import torch
     from stable_baselines3.common.callbacks import BaseCallback
@@ -239,6 +240,8 @@ def train_sb3(
         row = {"env_steps": int(model.num_timesteps), "wall_s": round(clock["train"], 1)}
         row.update(episode_stats(task, live, grid, config.env_id))
         curve.append(row)
+        # A run of hours is visible while it runs, and a killed one leaves its curve so far (``complete: false``).
+        _write_json(out / "curve.partial.json", {"config": config.to_dict(), "complete": False, "curve": curve})
         if on_point is not None:
             on_point(row)
         clock["since"] = time.perf_counter()
@@ -269,6 +272,7 @@ def train_sb3(
         "model": str(out / "model.zip"),
     }
     _write_json(out / "curve.json", summary)
+    (out / "curve.partial.json").unlink(missing_ok=True)
     return summary
 
 

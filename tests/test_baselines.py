@@ -71,7 +71,16 @@ def test_command_line_is_derived_from_the_config(tmp_path):
 
 def test_tiny_run_writes_model_statistics_and_curve(tmp_path):
     config = smoke_config(SB3Config(algo="PPO", seed=3))
-    summary = train_sb3(config, tmp_path)
+    seen: list[list[int]] = []
+
+    def on_point(row):  # while the run goes, its curve so far is on disk
+        partial = json.loads((tmp_path / "curve.partial.json").read_text())
+        assert partial["complete"] is False and partial["curve"][-1] == row
+        seen.append([p["env_steps"] for p in partial["curve"]])
+
+    summary = train_sb3(config, tmp_path, on_point=on_point)
+    assert len(seen) >= 2 and seen[-1][:-1] == seen[-2]
+    assert not (tmp_path / "curve.partial.json").exists()  # replaced by curve.json at the end
     assert (tmp_path / "model.zip").is_file() and (tmp_path / "vecnormalize.pkl").is_file()
     stored = json.loads((tmp_path / "curve.json").read_text())
     assert stored["env_steps"] == summary["env_steps"] >= config.total_timesteps
