@@ -31,17 +31,19 @@ acrobot's), ``tau = 3 s`` in 60 fixed steps of 0.05 s (2 RK4 substeps each), con
 profile's rule): at the end of the 3 s episode ``|th - pi| < 0.1 rad`` and ``|dth| < 0.5 rad/s`` with the cart still
 on the track. The example prints what it measured; the numbers are whatever this run gives, nothing is tuned to them.
 
-**Measured** (the full run, 2-core machine shared with other jobs, 5 min 38 s; every solver interpreted): one solve
-0.2-0.5 s; 8 solves identical with 1 worker, 2 workers and 2 Ray actors; 100 adversarial solves (+10 pretraining,
-0 failed) and 5,000 Sobolev training steps in ~2 min, validation ``mse_initial`` 0.24 and ``mse_all_knots`` 0.14
-(values 12-16). On the 5 x 5 grid of (x, th) starts at rest the **full-horizon MPC succeeds from 25/25** (mean cost
-14.0, the optimum's), while the **learned 10-step MPC succeeds from 0/25** (mean cost 86; the MPC with the task's
-quadratic terminal cost and clipped LQR also 0/25). Without a guard (step 5) the learned MPC swings the pole over the
-top. The network is close to the true cost to go along the optimal trajectory from hanging at rest (within 0.8 at
-every knot), but the MPC's optimizer finds its under-estimates off it: the first plan from there has an objective of
-5.1 where the true optimum is 13.9. A 300-solve, 2 x 64 network (validation ``mse_all_knots`` 0.002, within 0.07
-along that trajectory) did not change this (first plan 4.5, no swing-up). It is the closed-loop gap the README
-describes for the acrobot, and a swing-up from hanging down is the harder case (the acrobot starts near the top).
+**Measured** (the full run ``python examples/custom_system.py``, sixth session, 2-core machine shared with three
+other jobs, ~20 min; every solver interpreted): one solve 0.15 s; 8 solves identical with 1 worker, 2 workers and 2
+Ray actors. Training with the closed-loop sampler (the acrobot benchmark's recipe scaled down, see ``Config``): 500
+uniform solves, then 10 rounds of 50 tail problems at the MPC's planned terminal states (2 rounds collected with the
+``"lqr"``-guarded MPC, then 8 with the unguarded MPC on a refit of the buffer), a 3-member refit ensemble at the
+end: 1,000 solves (170 failed tail solves, kept out of the regression) in 879 s, validation ``mse_initial`` 0.16 and
+``mse_all_knots`` 0.011 (values 12-16). On the 5 x 5 grid of (x, th) starts at rest, the **learned 10-step MPC with
+the default "lqr" guard succeeds from 25/25** (mean cost 15.1, 16 of 1,500 steps fell back); the **full-horizon
+MPC from 25/25** (mean cost 13.99, the optimum); the MPC with the task's quadratic terminal cost alone and clipped
+LQR from 0/25. Unguarded, a network of the same recipe (a separate run of it) succeeds from 1/25 (mean cost 43;
+3/25 with a 20-step lookahead; 25/25 with the guard): the guard's ``l_f`` term holds the planner where the network
+is thin. Before the closed-loop sampler (100 adversarial
+solves, one network, validation ``mse_initial`` 0.24) the learned MPC succeeded from 0/25 with either guard.
 """
 
 from __future__ import annotations
