@@ -101,7 +101,8 @@ def local_optima(opt: TrajectoryOptimizer, results: list[SolveResult]) -> dict[s
     rng = np.random.default_rng(1234)
     differ = better = jumps = checked = 0
     gaps: list[float] = []
-    others = [g for g in ("line", "goal", "kinematic") if g in ("line", "goal") or task.name == "glider"]
+    # The "kinematic" guess differs from the line only for a task with (position, velocity) pairs (the glider).
+    others = ["line", "goal"] + (["kinematic"] if task.profile.solver.kinematic_pairs else [])
     for r in results:
         alt_values = []
         for g in others:
