@@ -397,36 +397,53 @@ def run_task(bench: BenchConfig, out: Path, workers: int, ship_dir: Path | None)
         network = dest
         shutil.copyfile(out / "success_vs_solves.png", ship_dir.parent / f"success_vs_solves_{bench.task}.png")
     timing = timed_steps(bench, network, grid_starts)
-    try:
-        net_rel = str(network.resolve().relative_to(ROOT))
-    except ValueError:
-        net_rel = str(network)
-    block = {
-        "method": SHIPPED,
-        "budget": final,
-        "seeds": bench.seeds,
-        "seed_list": list(bench.seed_list or range(bench.seeds)),
-        "success_rate": med,
-        "full_horizon_success_rate": full["success_rate"],
-        "heldout_success_rate": float(np.median([s["heldout_success_rate"] for s in shipped])),
-        "full_horizon_heldout_success_rate": full["heldout_success_rate"],
-        "network": net_rel,
+    return {
+        **shipped_block(bench, shipped, full, network, timing, final),
         "network_seed": rep["seed"],
-        "horizon": bench.horizon,
-        "trust_region": bench.trust_region,
-        "goal_blend": bench.goal_blend,
-        "median_ms": timing["median_ms"],
-        "p95_ms": timing["p95_ms"],
-        "query_error_median": float(np.nanmedian([s["query_error"]["median"] for s in shipped])),
-        "query_error_p95": float(np.nanmedian([s["query_error"]["p95"] for s in shipped])),
-        "grid": f"{bench.grid}x{bench.grid}",
-        "heldout_starts": bench.heldout,
         "budgets": list(bench.budgets),
         "methods": summary,
         "train_settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in bench.train.items()},
         "wall_s": round(time.perf_counter() - t_start, 1),
     }
-    return block
+
+
+def shipped_block(
+    bench: BenchConfig,
+    shipped: list[dict[str, Any]],
+    full: dict[str, Any],
+    network: Path,
+    timing: dict[str, Any],
+    budget: int,
+) -> dict[str, Any]:
+    """The contract's fields for the shipped method: medians over its per-seed evaluations ``shipped`` at ``budget``,
+    the full horizon on the same starts, the shipped ``network`` (relative to the repository) and its ``timing``."""
+    try:
+        net_rel = str(network.resolve().relative_to(ROOT))
+    except ValueError:
+        net_rel = str(network)
+    return {
+        "method": SHIPPED,
+        "budget": budget,
+        "seeds": len(shipped),
+        "seed_list": [s["seed"] for s in shipped],
+        "success_rate": float(np.median([s["success_rate"] for s in shipped])),
+        "full_horizon_success_rate": full["success_rate"],
+        "heldout_success_rate": float(np.median([s["heldout_success_rate"] for s in shipped])),
+        "full_horizon_heldout_success_rate": full["heldout_success_rate"],
+        "network": net_rel,
+        "horizon": bench.horizon,
+        "trust_region": bench.trust_region,
+        "goal_blend": bench.goal_blend,
+        "jit": bench.jit,
+        "median_ms": timing["median_ms"],
+        "p95_ms": timing["p95_ms"],
+        "timed_steps": timing["steps"],
+        "timed_success_rate": timing["success_rate"],
+        "query_error_median": float(np.nanmedian([s["query_error"]["median"] for s in shipped])),
+        "query_error_p95": float(np.nanmedian([s["query_error"]["p95"] for s in shipped])),
+        "grid": f"{bench.grid}x{bench.grid}",
+        "heldout_starts": bench.heldout,
+    }
 
 
 def aggregate_task(bench: BenchConfig, eval_dir: Path, network: Path, budget: int) -> dict[str, Any]:
@@ -445,54 +462,30 @@ def aggregate_task(bench: BenchConfig, eval_dir: Path, network: Path, budget: in
     task = make_task(bench.task)
     grid_starts, _ = start_grid(task, bench.grid)
     timing = timed_steps(bench, network, grid_starts)
+    block = shipped_block(bench, rows, full, network, timing, budget)
     succ = [r["success_rate"] for r in rows]
-    held = [r["heldout_success_rate"] for r in rows]
-    med = float(np.median(succ))
-    try:
-        net_rel = str(network.resolve().relative_to(ROOT))
-    except ValueError:
-        net_rel = str(network)
-    qe = [r["query_error"] for r in rows]
     return {
-        "method": SHIPPED,
-        "budget": budget,
-        "seeds": len(seeds),
-        "seed_list": seeds,
-        "success_rate": med,
-        "full_horizon_success_rate": full["success_rate"],
-        "heldout_success_rate": float(np.median(held)),
-        "full_horizon_heldout_success_rate": full["heldout_success_rate"],
-        "network": net_rel,
-        "horizon": bench.horizon,
-        "trust_region": bench.trust_region,
-        "goal_blend": bench.goal_blend,
-        "median_ms": timing["median_ms"],
-        "p95_ms": timing["p95_ms"],
-        "timed_steps": timing["steps"],
-        "timed_success_rate": timing["success_rate"],
-        "jit": bench.jit,
-        "query_error_median": float(np.nanmedian([q["median"] for q in qe])),
-        "query_error_p95": float(np.nanmedian([q["p95"] for q in qe])),
-        "grid": f"{bench.grid}x{bench.grid}",
-        "heldout_starts": bench.heldout,
+        **block,
         "budgets": [budget],
         "methods": {
             SHIPPED: {
                 "budgets": {
                     str(budget): {
-                        "success_median": med,
+                        "success_median": block["success_rate"],
                         "success_q25": float(np.percentile(succ, 25)),
                         "success_q75": float(np.percentile(succ, 75)),
                         "success_per_seed": succ,
-                        "heldout_median": float(np.median(held)),
-                        "heldout_per_seed": held,
-                        "query_error_median": float(np.nanmedian([q["median"] for q in qe])),
-                        "query_error_p95": float(np.nanmedian([q["p95"] for q in qe])),
+                        "heldout_median": block["heldout_success_rate"],
+                        "heldout_per_seed": [r["heldout_success_rate"] for r in rows],
+                        "query_error_median": block["query_error_median"],
+                        "query_error_p95": block["query_error_p95"],
                         "fallback_steps_median": float(np.median([r["fallback_steps"] for r in rows])),
                         "evaluated_median_ms": float(np.median([r["median_ms"] for r in rows])),
                     }
                 },
-                "smallest_budget_98pct_of_full_horizon": budget if med >= 0.98 * full["success_rate"] else None,
+                "smallest_budget_98pct_of_full_horizon": (
+                    budget if block["success_rate"] >= 0.98 * full["success_rate"] else None
+                ),
             }
         },
         "aggregated_from": str(eval_dir),

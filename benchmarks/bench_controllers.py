@@ -46,25 +46,29 @@ from seagul_envs import make_task  # noqa: E402
 RESULTS = ROOT / "benchmarks" / "results"
 
 
+class _Timed:
+    """A predictor that records the wall time of each ``predict`` of the one it wraps (other attributes pass)."""
+
+    def __init__(self, policy: Any) -> None:
+        self.policy = policy
+        self.times: list[float] = []
+
+    def predict(self, *args: Any, **kwargs: Any) -> Any:
+        t = time.perf_counter()
+        out = self.policy.predict(*args, **kwargs)
+        self.times.append(time.perf_counter() - t)
+        return out
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.policy, name)
+
+
 def latency(task: Any, spec: PolicySpec, starts: np.ndarray) -> dict[str, float]:
     """Median and p95 of the per-step computation time of ``spec``'s controller over episodes from ``starts``."""
-    policy = build_policy(task, spec)
-    times: list[float] = []
+    timed = _Timed(build_policy(task, spec))
     for x0 in starts:
-        original = policy.predict
-
-        def timed(*args: Any, original: Any = original, **kwargs: Any) -> Any:
-            t = time.perf_counter()
-            out = original(*args, **kwargs)
-            times.append(time.perf_counter() - t)
-            return out
-
-        policy.predict = timed  # type: ignore[method-assign]
-        try:
-            run_policy_episode(task, policy, x0)
-        finally:
-            policy.predict = original  # type: ignore[method-assign]
-    ms = np.asarray(times) * 1e3
+        run_policy_episode(task, timed, x0)
+    ms = np.asarray(timed.times) * 1e3
     return {"median_ms": float(np.median(ms)), "p95_ms": float(np.percentile(ms, 95)), "steps": int(ms.size)}
 
 

@@ -68,6 +68,7 @@ NaN observations, wrong shapes and a horizon < 1 raise ValueErrors naming the pr
 from __future__ import annotations
 
 import contextlib
+import inspect
 import os
 import tempfile
 import time
@@ -867,12 +868,10 @@ class FullHorizonMPC(_MPCBase):
 
 
 def _value_function_form(vf: Any, form: str) -> ca.Function:
-    """``vf.casadi_function(form=form)`` when ``vf`` offers that form, else its only form ``vf.casadi_function()``."""
-    if form != "scalar":
-        try:
-            return vf.casadi_function(form=form)
-        except TypeError:  # a user's value function with a single (scalar) form
-            pass
+    """``vf.casadi_function(form=form)`` when ``vf`` offers that form (a ``form`` parameter), else its only form
+    ``vf.casadi_function()`` (a user's value function with a single, scalar form)."""
+    if form != "scalar" and "form" in inspect.signature(vf.casadi_function).parameters:
+        return vf.casadi_function(form=form)
     return vf.casadi_function()
 
 

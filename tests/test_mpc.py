@@ -488,3 +488,18 @@ def test_compiled_matrix_form_value_function_is_the_interpreted_one(tmp_path, en
         assert (info_c.source, info_c.status, info_c.iterations) == (info_i.source, info_i.status, info_i.iterations)
         np.testing.assert_allclose(u_c, u_i, rtol=1e-6, atol=1e-6)
         x, tau = x + 0.02 * rng.standard_normal(4), tau - 0.1  # the next state, warm-started in both
+
+
+def test_a_value_function_with_one_form_is_used_in_it_and_a_bad_form_is_refused():
+    """The MPC asks for the matrix form only from value functions whose ``casadi_function`` takes ``form``."""
+    pytest.importorskip("torch")
+    from seagul_control.mpc import _value_function_form
+    from seagul_learn.value_network import ValueNetwork
+
+    quadratic = QuadraticValue(np.eye(4), np.zeros(4))
+    assert _value_function_form(quadratic, "matrix") is quadratic.fn
+    net = ValueNetwork(4, (8,), task_name="acrobot", seed=0)
+    assert _value_function_form(net, "matrix").is_a("MXFunction")
+    assert _value_function_form(net, "scalar").is_a("SXFunction")
+    with pytest.raises(ValueError, match="form must be 'scalar' or 'matrix'"):
+        net.casadi_function(form="dense")

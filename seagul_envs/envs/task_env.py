@@ -2,13 +2,12 @@
 
 from __future__ import annotations
 
-import importlib
 from collections.abc import Callable
 from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium.envs.registration import EnvSpec
+from gymnasium.envs.registration import EnvSpec, load_env_creator
 
 from seagul_envs.envs.base import TaskSimulatorEnv
 from seagul_envs.tasks import Task, make_task, shared_task, validate_task
@@ -110,10 +109,8 @@ def env_class_for(task: Task) -> type[TaskSimulatorEnv]:
     env_id = task.profile.env_id
     if not env_id or env_id not in gym.registry:
         return TaskEnv
-    entry = gym.registry[env_id].entry_point
-    if isinstance(entry, str):
-        module, _, attr = entry.partition(":")
-        entry = getattr(importlib.import_module(module), attr)
+    registered = gym.registry[env_id].entry_point
+    entry: Any = load_env_creator(registered) if isinstance(registered, str) else registered
     params_class = getattr(entry, "params_class", None)
     if isinstance(entry, type) and issubclass(entry, TaskSimulatorEnv) and params_class is not None:
         if isinstance(task.params, params_class):
