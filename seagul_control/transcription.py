@@ -295,6 +295,12 @@ class Transcription:
         step_bounds: bounds of free steps (default: the task's).
         time_mode: how ``sum(h)`` meets ``tau`` (see the module docstring); only used with ``free_time``.
         final_box: impose the task's terminal box ``x_final_low <= x_n <= x_final_high``.
+        soft_bounds_weight: None (default) imposes the state bounds of knots ``1..n`` (the path bounds and, at ``x_n``,
+            the terminal box) as bounds; a weight ``M > 0`` makes them *soft*, the exact L1 penalty
+            ``M * sum_k sum_i max(0, x_k,i - hi_k,i, lo_k,i - x_k,i)`` (slack variables after the last stage; IPOPT
+            only). Where the bounds can be met and ``M`` exceeds their multipliers the solution is the hard
+            problem's; where they cannot, the problem stays feasible and its value says how far off they are (a
+            finite, graded label where the hard value is infinite). :meth:`bound_penalties` gives the terms.
         terminal_cost: ``(x, tau_remaining, theta) -> scalar``; default the task's ``l_f(x)``.
         n_theta: length of ``theta`` (terminal-cost parameters).
         substeps: RK4 substeps per interval (default: the task's).
@@ -328,6 +334,7 @@ class Transcription:
         step_bounds: tuple[float, float] | None = None,
         time_mode: TimeMode = "equal",
         final_box: bool = True,
+        soft_bounds_weight: float | None = None,
         terminal_cost: ca.Function | None = None,
         n_theta: int = 0,
         substeps: int | None = None,
@@ -352,6 +359,20 @@ class Transcription:
         self.step_bounds: tuple[float, float] = (lo_step, hi_step)
         self.time_mode: TimeMode = time_mode
         self.final_box = final_box
+        if soft_bounds_weight is not None:
+            if not (np.isfinite(soft_bounds_weight) and soft_bounds_weight > 0):
+                raise ValueError(f"soft_bounds_weight must be a positive number or None, got {soft_bounds_weight!r}")
+            if solver != "ipopt":
+                raise ValueError(
+                    "soft_bounds_weight (soft state bounds) needs solver='ipopt': its slack variables "
+                    "are not stage-wise, as fatrop requires"
+                )
+        self.soft_bounds_weight = None if soft_bounds_weight is None else float(soft_bounds_weight)
+        box_lo = np.maximum(task.x_low, task.x_final_low) if final_box else task.x_low
+        box_hi = np.minimum(task.x_high, task.x_final_high) if final_box else task.x_high
+        # Per knot 1..n: the bounds the soft penalty measures (the path bounds, the terminal box at the end).
+        self._knot_lo = np.vstack([np.tile(task.x_low, (n - 1, 1)), box_lo[None]])
+        self._knot_hi = np.vstack([np.tile(task.x_high, (n - 1, 1)), box_hi[None]])
         self.n_theta = int(n_theta)
         self.substeps = task.rk4_substeps if substeps is None else int(substeps)
         self.solver_name = solver
@@ -406,6 +427,9 @@ class Transcription:
             return np.arange(n_g - expr.numel(), n_g)
 
         objective: ca.MX = ca.MX(0)
+        self._slack_idx: list[np.ndarray] = []
+        self._soft_cols: list[np.ndarray] = []
+        soft_states: list[ca.MX] = []
         fixed_h = (tau / n) if self.step is None else self.step
         x_k = ca.MX.sym("x_0", nx)
         self._x_idx.append(add_var(x_k, -np.inf, np.inf))
@@ -427,10 +451,11 @@ class Transcription:
                 h_k = fixed_h
             objective = objective + h_k * task.stage_cost(x_k, u_k)
             x_next = ca.MX.sym(f"x_{k + 1}", nx)
-            last = k == n - 1
-            lo = np.maximum(task.x_low, task.x_final_low) if (last and final_box) else task.x_low
-            hi = np.minimum(task.x_high, task.x_final_high) if (last and final_box) else task.x_high
-            self._x_idx.append(add_var(x_next, lo, hi))
+            if self.soft_bounds_weight is None:
+                self._x_idx.append(add_var(x_next, self._knot_lo[k], self._knot_hi[k]))
+            else:
+                self._x_idx.append(add_var(x_next, -np.inf, np.inf))
+                soft_states.append(x_next)
             # fatrop's structure detection requires gap-closing rows written as x_{k+1} - F(x_k, u_k).
             if self.free_time:
                 t_next = ca.MX.sym(f"t_{k + 1}")
@@ -453,6 +478,21 @@ class Transcription:
             elapsed = n * fixed_h
             self._time_row = -1
         objective = objective + terminal_cost(x_k, tau - elapsed, theta)
+        weight = float(self.soft_bounds_weight or 0.0)  # soft_states is empty unless a weight is set
+        for k, x_soft in enumerate(soft_states):
+            # Exact L1 penalty: x_k - s <= hi, x_k + s >= lo, s >= 0 (one slack per bounded component of knot k+1).
+            lo_k, hi_k = self._knot_lo[k], self._knot_hi[k]
+            cols = np.flatnonzero(np.isfinite(lo_k) | np.isfinite(hi_k))
+            self._soft_cols.append(cols)
+            if not cols.size:
+                self._slack_idx.append(np.zeros(0, dtype=np.int64))
+                continue
+            slack = ca.MX.sym(f"slack_{k + 1}", cols.size)
+            self._slack_idx.append(add_var(slack, 0.0, np.inf))
+            x_c = x_soft[cols.tolist()]
+            add_con(x_c - slack, -np.inf, hi_k[cols])
+            add_con(x_c + slack, lo_k[cols], np.inf)
+            objective = objective + weight * ca.sum1(slack)
 
         self._w = ca.vertcat(*w)
         self._lbw, self._ubw = np.concatenate(lbw), np.concatenate(ubw)
@@ -489,6 +529,21 @@ class Transcription:
         self._solver: ca.Function = ca.nlpsol(name, solver, nlp, options) if compiled is None else compiled
         # Stage costs and elapsed time of a solution, for per-knot labels.
         self._stage_cost_fn = task.stage_cost.map(n)
+
+    def _violations(self, states: np.ndarray) -> np.ndarray:
+        """``(n, nx)`` bound violations ``max(0, x - hi, lo - x)`` of knots ``1..n``."""
+        x = np.asarray(states, dtype=float).reshape(self.horizon + 1, self.task.nx)[1:]
+        with np.errstate(invalid="ignore"):
+            over = np.maximum(0.0, np.maximum(x - self._knot_hi, self._knot_lo - x))
+        return np.nan_to_num(over, nan=0.0)
+
+    def bound_penalties(self, states: np.ndarray) -> np.ndarray:
+        """``(n + 1,)`` soft-bound penalty of each knot's state (``M`` times its violation; knot 0, the start, and
+        every knot of a hard transcription: 0). A knot's label adds the penalties of the knots after it."""
+        out = np.zeros(self.horizon + 1)
+        if self.soft_bounds_weight is not None:
+            out[1:] = self.soft_bounds_weight * self._violations(states).sum(axis=1)
+        return out
 
     # ----------------------------------------------------------------- sizes
     @property
@@ -620,6 +675,10 @@ class Transcription:
             h = np.full(self.horizon, float(np.mean(self.step_bounds))) if steps is None else np.asarray(steps)
             w0[self._h_idx] = h
             w0[self._t_idx] = np.concatenate([[0.0], np.cumsum(h)])
+        if self.soft_bounds_weight is not None:  # slacks at the guess's violations (a feasible start)
+            over = self._violations(states)
+            for k, (idx, cols) in enumerate(zip(self._slack_idx, self._soft_cols, strict=True)):
+                w0[idx] = over[k, cols]
         return w0
 
     def line_guess(self, x_init: np.ndarray, tau: float, target: np.ndarray | None = None) -> np.ndarray:

@@ -107,7 +107,8 @@ class TrajoptBatchSolver:
             idx = [i for i, h in enumerate(horizons) if h == k]
             options = dict(self.solver_options)
             if k is not None:
-                options = {**TAIL_SOLVER_DEFAULTS, **options, "horizon": k}
+                soft = self.task.profile.solver.tail_soft_bounds_weight
+                options = {**TAIL_SOLVER_DEFAULTS, "soft_bounds_weight": soft, **options, "horizon": k}
             results = solve_many(
                 self.task,
                 starts[idx],

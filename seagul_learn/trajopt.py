@@ -19,6 +19,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
+import math
 import time
 from dataclasses import dataclass, field
 from typing import Any, Literal
@@ -104,6 +105,12 @@ class TrajOptConfig:
     horizon: int | None = None
     """Number of intervals (default: the task's ``m``). A shorter horizon on a fixed-step task solves the tail problem
     from a mid-trajectory knot (same step, ``tau`` may then be below ``T0``)."""
+    soft_bounds_weight: float | None = None
+    """None: the state bounds (path bounds, terminal box) are hard constraints (the full problem). A weight ``M > 0``
+    makes them the exact L1 penalty ``M * sum_k sum_i max(0, x_k,i - hi, lo - x_k,i)`` over knots ``1..m``
+    (``Transcription(soft_bounds_weight=M)``; IPOPT attempts only): the value where the bounds can be met, a finite,
+    graded value where they cannot (tails from the glider's planned terminal states, from which the perch may be
+    unreachable or a crash unavoidable). The penalties are part of the value and of every knot's label."""
     codegen: bool = True
     """Compile the NLP functions to C (cached on disk) when a compiler is available."""
     solver_options: tuple[tuple[str, Any], ...] = ()
@@ -167,6 +174,14 @@ class TrajOptConfig:
             raise ValueError(f"unknown multi_start {self.multi_start!r}")
         if self.max_iter < 1 or self.tol <= 0:
             raise ValueError("max_iter must be >= 1 and tol > 0")
+        if self.soft_bounds_weight is not None and not (
+            math.isfinite(self.soft_bounds_weight) and self.soft_bounds_weight > 0
+        ):
+            raise ValueError(f"soft_bounds_weight must be a positive number or None, got {self.soft_bounds_weight!r}")
+        if self.soft_bounds_weight is not None and any(st[0] == "fatrop" for st in steps):
+            raise ValueError(
+                f"soft_bounds_weight (soft state bounds) needs IPOPT attempts; the plan has fatrop: {self.plan}"
+            )
 
 
 @dataclass
@@ -234,6 +249,7 @@ class TrajectoryOptimizer:
                 solver="fatrop" if solver == "fatrop" else "ipopt",
                 solver_options=self._solver_options(solver),
                 codegen=self.config.codegen,
+                soft_bounds_weight=self.config.soft_bounds_weight,
             )
         return self._transcriptions[solver]
 
@@ -358,8 +374,11 @@ class TrajectoryOptimizer:
         steps = np.asarray(sol.steps, dtype=float)
         stage = transcription.stage_costs(sol.states, sol.controls, steps)
         terminal = self.task.terminal_cost_value(sol.states[-1])
-        # cost_to_go[k] = sum_{i>=k} h_i l(x_i, u_i) + l_f(x_m); its first entry is the value.
+        # cost_to_go[k] = sum_{i>=k} h_i l(x_i, u_i) + l_f(x_m) (+ the soft bounds' penalties of knots j > k); its
+        # first entry is the value.
         cost_to_go = np.concatenate([np.cumsum(stage[::-1])[::-1], [0.0]]) + terminal
+        penalty = transcription.bound_penalties(sol.states)
+        cost_to_go += np.concatenate([np.cumsum(penalty[::-1])[::-1][1:], [0.0]])
         elapsed = np.concatenate([[0.0], np.cumsum(steps)])
         time_to_go = tau - elapsed
         time_to_go[0], time_to_go[-1] = tau, 0.0  # exact ends: sum(h) = tau holds to the solver's tolerance

@@ -217,3 +217,61 @@ def test_suspect_values_trigger_a_multi_start() -> None:
     assert guarded.success and guarded.value < 30.0
     assert "ipopt:goal" in guarded.attempts
     assert guarded.cost_to_go[0] == guarded.value
+
+
+# ------------------------------------------------------------------------------------------ soft state bounds
+#: A planned terminal state of a uniform-trained glider MPC (1.4 m before the perch, pitched 1.42 rad up, 0.3 s to
+#: go): no plan from it perches inside the box, so the hard tail problem has no solution.
+GLIDER_LOST = np.array([-0.45, 0.08, 1.42, -0.78, 2.73, 0.34, 2.23])
+SOFT_TAIL = {"plan": ("ipopt_fast:line", "ipopt:line"), "multi_start": "never", "max_iter": 150, "codegen": False}
+
+
+def test_soft_bounds_equal_the_hard_problem_where_the_box_is_reachable(glider_result: SolveResult) -> None:
+    soft = TrajectoryOptimizer("glider", plan=("ipopt:kinematic",), codegen=False, soft_bounds_weight=1e4)
+    r = soft.solve(GLIDER_X)
+    assert r.success, r.status
+    assert r.value == pytest.approx(glider_result.value, rel=1e-6)
+    np.testing.assert_allclose(r.grad_x, glider_result.grad_x, rtol=1e-4, atol=1e-3)
+    np.testing.assert_allclose(r.cost_to_go, glider_result.cost_to_go, rtol=1e-5, atol=1e-5)
+
+
+def test_soft_bounds_give_a_graded_value_where_the_hard_tail_is_infeasible() -> None:
+    task = make_task("glider")
+    hard = TrajectoryOptimizer(task, horizon=15, **SOFT_TAIL).solve(GLIDER_LOST, 0.3)
+    assert not hard.success
+    opt = TrajectoryOptimizer(task, horizon=15, soft_bounds_weight=1e3, **SOFT_TAIL)
+    r = opt.solve(GLIDER_LOST, 0.3)
+    assert r.success, r.status
+    tr = opt._transcription("ipopt")
+    penalty = tr.bound_penalties(r.states)
+    assert penalty[0] == 0.0 and penalty[-1] > 0  # the end misses the perch box
+    # The value is the solver's objective: running cost + l_f + the penalties (slacks at the violations).
+    stage = tr.stage_costs(r.states, r.controls, r.steps)
+    assert r.value == pytest.approx(stage.sum() + task.terminal_cost_value(r.states[-1]) + penalty.sum(), rel=1e-6)
+    # Every knot's label adds the penalties of the knots after it: cost_to_go[k] - cost_to_go[k+1] is that knot's
+    # running cost plus the next knot's penalty.
+    np.testing.assert_allclose(-np.diff(r.cost_to_go), stage + penalty[1:], rtol=1e-9, atol=1e-9)
+    # A steeper penalty makes the lost state dearer: the value grades the violation.
+    r10 = TrajectoryOptimizer(task, horizon=15, soft_bounds_weight=1e4, **SOFT_TAIL).solve(GLIDER_LOST, 0.3)
+    assert r10.success and r10.value > r.value
+
+
+def test_soft_bound_value_gradient_matches_finite_differences() -> None:
+    opt = TrajectoryOptimizer("glider", horizon=15, soft_bounds_weight=1e3, tol=1e-10, **SOFT_TAIL)
+    r = opt.solve(GLIDER_LOST, 0.3)
+    assert r.success
+    eps = 1e-5
+    for i in (0, 2, 4):
+        d = np.zeros(7)
+        d[i] = eps
+        fd = (opt.solve(GLIDER_LOST + d, 0.3).value - opt.solve(GLIDER_LOST - d, 0.3).value) / (2 * eps)
+        assert r.grad_x[i] == pytest.approx(fd, rel=2e-3, abs=1e-2 * (1 + abs(fd)))
+
+
+def test_soft_bounds_refuse_fatrop_and_bad_weights() -> None:
+    with pytest.raises(ValueError, match="soft_bounds_weight must be a positive number"):
+        TrajectoryOptimizer("glider", soft_bounds_weight=-1.0)
+    with pytest.raises(ValueError, match="needs IPOPT attempts"):
+        TrajectoryOptimizer("glider", plan=("fatrop:line",), soft_bounds_weight=1e3)
+    with pytest.raises(ValueError, match="needs solver='ipopt'"):
+        Transcription(make_task("glider"), solver="fatrop", soft_bounds_weight=1e3)

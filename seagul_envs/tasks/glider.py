@@ -41,9 +41,14 @@ SOLVER_DEFAULTS = SolverDefaults(
     plan=("ipopt_fast:kinematic", "fatrop:kinematic", "ipopt:kinematic", "ipopt:line", "ipopt:goal"),
     multi_start="never",
     kinematic_pairs=((0, 4), (1, 5)),
+    tail_soft_bounds_weight=1e4,
 )
 """The glider's attempt plan (measured, docs/trajopt.md): ``ipopt_fast`` converges in ~40 iterations where the filter
-line search needs ~140; the ``"kinematic"`` guess makes the (x, dx) and (z, dz) pairs consistent."""
+line search needs ~140; the ``"kinematic"`` guess makes the (x, dx) and (z, dz) pairs consistent. Tails impose the
+perch box softly with ``M = 1e4`` per metre (or radian, m/s) of violation: the box's multipliers reach 3.7e3 at X0's
+corner (``M = 1e3`` changed that start's value from 948 to 618; from 1e4 on the values of X0 starts are the hard
+problem's), and a planned terminal state from which the perch is unreachable gets the soft value, e.g. 117 from
+the first plan of a uniform-trained MPC that ends 6 cm past the perch (docs/closed_loop.md)."""
 
 PRESETS: dict[str, dict[str, object]] = {
     "smoke": {

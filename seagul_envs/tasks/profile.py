@@ -60,6 +60,13 @@ class SolverDefaults:
     """Value above which ``multi_start="on_suspect"`` triggers."""
     kinematic_pairs: tuple[tuple[int, int], ...] = ()
     """(position, velocity) state index pairs made consistent by the ``"kinematic"`` guess (none: it is the line)."""
+    tail_soft_bounds_weight: float | None = None
+    """Tail problems (from planned terminal states, mid-trajectory knots) impose the state bounds of their knots
+    (path bounds, terminal box) as the exact L1 penalty of this weight instead of as bounds
+    (``TrajOptConfig.soft_bounds_weight``); None: as bounds. For a task whose box may be unreachable, or whose crash
+    unavoidable, from the states a planner visits (the glider's perch), the hard tail is infeasible there and
+    teaches nothing; the soft one gives a large, graded value. Choose it above the bounds' multipliers on the data
+    (then the soft value equals the hard one wherever the bounds can be met)."""
 
     def config_defaults(self) -> dict[str, Any]:
         """The defaults as :class:`~seagul_learn.trajopt.TrajOptConfig` field values (``plan`` only when set)."""
