@@ -503,3 +503,24 @@ def test_a_value_function_with_one_form_is_used_in_it_and_a_bad_form_is_refused(
     assert _value_function_form(net, "scalar").is_a("SXFunction")
     with pytest.raises(ValueError, match="form must be 'scalar' or 'matrix'"):
         net.casadi_function(form="dense")
+
+
+def test_glider_soft_final_phase_returns_a_plan_where_the_exact_perch_is_out_of_reach() -> None:
+    """Final phase (the last 10 steps end at the episode end): from this state no plan lands exactly in the perch box
+    with fixed 25 ms steps, so the hard final phase fails and the step falls back; the glider's default soft box
+    (IPOPT, exact L1 penalty) converges to the plan that ends closest to it."""
+    task = make_task("glider")
+    x = np.array([-0.38, 0.08, 1.46, -0.7, 2.48, 0.16, 1.61])
+    hard = LimitedLookaheadMPC(task, None, 10, jit=False, final_soft_weight=0)
+    assert hard.final_soft_weight is None and hard.final_solver == "fatrop"
+    _, info = hard.act(x, 0.25)
+    assert info.phase == "final" and not info.success and info.source != "solver"
+    soft = LimitedLookaheadMPC(task, None, 10, jit=False)
+    assert soft.final_soft_weight == task.profile.mpc_final_soft_weight == 1e4 and soft.final_solver == "ipopt"
+    u, info = soft.act(x, 0.25)
+    assert info.phase == "final" and info.success and info.source == "solver", info.status
+    assert np.all(np.abs(u) <= task.u_high)
+    with pytest.raises(ValueError, match="final_soft_weight must be a number >= 0"):
+        LimitedLookaheadMPC(task, None, 10, jit=False, final_soft_weight=-1.0)
+    with pytest.raises(ValueError, match="final_solver must be"):
+        LimitedLookaheadMPC(task, None, 10, jit=False, final_solver="snopt")  # type: ignore[arg-type]

@@ -274,6 +274,11 @@ class TaskProfile:
     mpc_goal_blend: float = 0.0
     """Default ``goal_blend`` of the limited-lookahead MPC (value units; 0 = off): below about this value of ``l_f``
     the task's terminal quadratic is the value (equilibrium goals only; docs/closed_loop.md)."""
+    mpc_final_soft_weight: float | None = None
+    """Default ``final_soft_weight`` of the limited-lookahead MPC's final phase (the last ``horizon`` steps, which
+    end at the episode end inside the terminal box): None imposes the box and path bounds as bounds; a weight makes
+    them the exact L1 penalty (IPOPT), so the final phase always returns the plan that ends closest to the box
+    instead of failing when the box is out of exact reach (glider: 1e4; docs/closed_loop.md)."""
     grid: EvaluationGrid = field(default_factory=EvaluationGrid)
     """The closed-loop start grid."""
     heatmap_metric: str = "final_distance"
