@@ -218,3 +218,52 @@ def test_batch_solver_routes_tail_times_to_tail_problems_bellman_consistent():
     assert tail.success and tail.states.shape[0] == 51 - k
     assert tail.value == pytest.approx(full.cost_to_go[k], rel=1e-6, abs=1e-8)
     np.testing.assert_allclose(tail.grad_x, full.knot_grads[k], rtol=1e-4, atol=1e-6)
+
+
+def test_bench_glider_block_carries_the_contract_fields_and_update_keeps_other_tasks(tmp_path, monkeypatch):
+    """The benchmark's glider settings come from the task (horizon, grid), its block names the perch rate as the
+    contract spells it, and ``--update`` writes one task's block beside the others already in the file."""
+    import importlib
+    import json
+    import sys
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.syspath_prepend(str(root / "benchmarks"))
+    bench_mod = importlib.import_module("bench_closed_loop")
+    glider = bench_mod.BenchConfig.for_task("glider", quick=False)
+    assert (glider.horizon, glider.grid, glider.goal_blend) == (10, 6, 0.0)
+    assert glider.train["value_cap"] == 1500.0 and glider.train["refit_steps"] == 0
+    rows = [
+        {"seed": s, "success_rate": r, "heldout_success_rate": r, "query_error": {"median": 1.0, "p95": 2.0}}
+        for s, r in enumerate([0.5, 0.9, 0.7])
+    ]
+    full = {"success_rate": 1.0, "heldout_success_rate": float("nan")}
+    timing = {"median_ms": 5.0, "p95_ms": 30.0, "steps": 10, "success_rate": 0.7}
+    block = bench_mod.shipped_block(glider, rows, full, Path("net.pt"), timing, 2000)
+    assert block["perch_success_rate"] == block["success_rate"] == 0.7
+    assert block["full_horizon_perch_success_rate"] == 1.0 and block["seeds"] == 3 and block["horizon"] == 10
+    assert "perch_success_rate" not in bench_mod.shipped_block(
+        bench_mod.BenchConfig.for_task("acrobot", quick=False), rows, full, Path("net.pt"), timing, 2000
+    )
+    target = tmp_path / "closed_loop.json"
+    target.write_text(json.dumps({"acrobot": {"success_rate": 0.9}, "machine": {"cpu": "old"}}))
+    monkeypatch.setattr(bench_mod, "aggregate_task", lambda bench, *a: {"task": bench.task, "success_rate": 0.7})
+    monkeypatch.setattr(sys, "argv", ["bench_closed_loop.py"])
+    bench_mod.main(
+        [
+            "--aggregate",
+            str(tmp_path),
+            "--network",
+            "net.pt",
+            "--budgets",
+            "2000",
+            "--tasks",
+            "glider",
+            "--update",
+            str(target),
+        ]
+    )
+    merged = json.loads(target.read_text())
+    assert merged["acrobot"] == {"success_rate": 0.9} and merged["glider"]["success_rate"] == 0.7
+    assert "glider" in merged["machines"]
