@@ -598,10 +598,9 @@ def main(argv: list[str] | None = None) -> int:
     if args.update:
         path = Path(args.update)
         merged = json.loads(path.read_text()) if path.is_file() else {}
-        machines = merged.pop("machine", None)
         merged.update({k: v for k, v in result.items() if k != "machine"})
-        # One machine record per run that wrote into the file, keyed by the tasks it ran.
-        merged["machine"] = result["machine"] if machines is None else machines
+        # "machine" stays the file's first run's; "machines" holds one record per run, keyed by the tasks it ran.
+        merged.setdefault("machine", result["machine"])
         merged.setdefault("machines", {})[",".join(k for k in result if k != "machine")] = result["machine"]
         path.write_text(json.dumps(merged, indent=1) + "\n")
     print(json.dumps(result))

@@ -453,11 +453,15 @@ class _MPCBase:
         trans = Transcription(self.task, solver=solver, solver_options=options, **kwargs)
         return _Problem(trans, phase, pin, shrink, self.task.step_bounds[0])
 
-    def _options_for(self, solver: SolverName) -> dict[str, Any]:
-        """nlpsol options of ``solver`` from this controller's limits and the user's options meant for it."""
+    def _options_for(self, solver: SolverName, only_its_own: bool = True) -> dict[str, Any]:
+        """nlpsol options of ``solver``: this controller's limits and the user's options (``only_its_own``: only those
+        meant for it, i.e. without a plugin prefix or with ``solver``'s; a second solver, such as the final phase's,
+        then never sees the first's options; the main solver gets every user option, so a misspelt one raises)."""
         base = f"{solver}."
         limits = {base + "max_iter": self._max_iter, base + "tol": self._tol}
-        user = {k: v for k, v in self._user_solver_options.items() if "." not in k or k.startswith(base)}
+        user = self._user_solver_options
+        if only_its_own:
+            user = {k: v for k, v in user.items() if "." not in k or k.startswith(base)}
         return {**limits, **user}
 
     def default_solver(self, free_time: bool) -> SolverName:
@@ -488,11 +492,7 @@ class _MPCBase:
         self.solver: SolverName = solver
         self._max_iter, self._tol = int(max_iter), float(tol)
         self._user_solver_options = dict(solver_options or {})
-        if solver == "fatrop":
-            base = {"fatrop.max_iter": int(max_iter), "fatrop.tol": float(tol)}
-        else:
-            base = {"ipopt.max_iter": int(max_iter), "ipopt.tol": float(tol)}
-        self._solver_options = {**base, **(solver_options or {})}
+        self._solver_options = self._options_for(solver, only_its_own=False)
         self._jit_cache_dir = None if jit_cache_dir is None else Path(jit_cache_dir)
         self._jit_options = jit_solver_options(self._jit_cache_dir, ("-O1",) if jit_flags is None else jit_flags)
         self._codegen_flags = ("-O3", "-fPIC", "-shared") if jit_flags is None else (*jit_flags, "-fPIC", "-shared")
@@ -536,8 +536,8 @@ class LimitedLookaheadMPC(_MPCBase):
             ``l_f``); default ``"shrink"`` for tasks with a terminal box (glider), ``"switch"`` otherwise.
         warm_start: warm-start each env from its previous solution (shifted).
         cold_guess: first guess without a warm start: ``"rollout"`` (zero input) or ``"line"`` (to the goal).
-        final_solver: solver of the fixed-step final phase (default: ``solver``; IPOPT with ``final_soft_weight``).
-        final_soft_weight: the fixed-step final phase imposes the terminal box and path bounds as the exact L1
+        final_solver: solver of the final phase (default: ``solver``; IPOPT with ``final_soft_weight``).
+        final_soft_weight: the final phase imposes the terminal box and path bounds as the exact L1
             penalty of this weight (IPOPT), so it returns the plan that ends closest to the box where the box is out
             of exact reach, instead of failing. None: the task's ``profile.mpc_final_soft_weight`` (glider 1e4,
             measured: 1 fallback step in 1,152 on the 6 x 6 grid instead of 337, mean cost 347 against 483, the same
@@ -630,6 +630,8 @@ class LimitedLookaheadMPC(_MPCBase):
         self.final_soft_weight = float(final_soft_weight) if final_soft_weight else None  # 0: a hard box
         if self.final_soft_weight is not None and final_solver is None:
             final_solver = "ipopt"  # soft bounds need IPOPT (slack variables)
+        if self.final_soft_weight is not None and final_solver != "ipopt":
+            raise ValueError(f"{self.name}: final_soft_weight needs final_solver='ipopt', got {final_solver!r}")
         self.final_solver: SolverName = self.solver if final_solver is None else final_solver
         self.end_phase = end_phase
         self.final_box = bool(final_box)
@@ -658,6 +660,8 @@ class LimitedLookaheadMPC(_MPCBase):
                     step_bounds=(0.0, max(task.step_bounds[1], self.dt)),
                     time_mode="equal",
                     final_box=self.final_box,
+                    solver=self.final_solver,
+                    soft_bounds_weight=self.final_soft_weight,
                     **common,
                 )
 

@@ -533,9 +533,7 @@ class Transcription:
     def _violations(self, states: np.ndarray) -> np.ndarray:
         """``(n, nx)`` bound violations ``max(0, x - hi, lo - x)`` of knots ``1..n``."""
         x = np.asarray(states, dtype=float).reshape(self.horizon + 1, self.task.nx)[1:]
-        with np.errstate(invalid="ignore"):
-            over = np.maximum(0.0, np.maximum(x - self._knot_hi, self._knot_lo - x))
-        return np.nan_to_num(over, nan=0.0)
+        return np.maximum(0.0, np.maximum(x - self._knot_hi, self._knot_lo - x))
 
     def bound_penalties(self, states: np.ndarray) -> np.ndarray:
         """``(n + 1,)`` soft-bound penalty of each knot's state (``M`` times its violation; knot 0, the start, and

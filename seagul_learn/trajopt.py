@@ -214,6 +214,7 @@ class TrajectoryOptimizer:
             cfg = cfg.with_updates(**options)
         cfg.validate()
         cfg = cfg.resolved(self.task)
+        cfg.validate()  # again with the task's plan filled in (e.g. soft bounds with a default plan that has fatrop)
         self.config = cfg
         self.horizon = self.task.num_steps if cfg.horizon is None else int(cfg.horizon)
         self._transcriptions: dict[str, Transcription] = {}

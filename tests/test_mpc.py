@@ -524,3 +524,12 @@ def test_glider_soft_final_phase_returns_a_plan_where_the_exact_perch_is_out_of_
         LimitedLookaheadMPC(task, None, 10, jit=False, final_soft_weight=-1.0)
     with pytest.raises(ValueError, match="final_solver must be"):
         LimitedLookaheadMPC(task, None, 10, jit=False, final_solver="snopt")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="final_soft_weight needs final_solver='ipopt'"):
+        LimitedLookaheadMPC(task, None, 10, jit=False, final_solver="fatrop", final_soft_weight=1e4)
+    # The free-time MPC's final phase (one problem for every remaining time) takes the same soft box.
+    free = LimitedLookaheadMPC(task, None, 10, jit=False, steps="free")
+    assert free._final is not None and free._final.trans.soft_bounds_weight == 1e4
+    _, info = free.act(x, 0.25)
+    assert info.phase == "final" and info.success, info.status
+    free_hard = LimitedLookaheadMPC(task, None, 10, jit=False, steps="free", final_soft_weight=0)
+    assert free_hard._final is not None and free_hard._final.trans.soft_bounds_weight is None

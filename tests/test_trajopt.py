@@ -273,5 +273,7 @@ def test_soft_bounds_refuse_fatrop_and_bad_weights() -> None:
         TrajectoryOptimizer("glider", soft_bounds_weight=-1.0)
     with pytest.raises(ValueError, match="needs IPOPT attempts"):
         TrajectoryOptimizer("glider", plan=("fatrop:line",), soft_bounds_weight=1e3)
+    with pytest.raises(ValueError, match="needs IPOPT attempts"):  # the glider's default plan tries fatrop
+        TrajectoryOptimizer("glider", soft_bounds_weight=1e3)
     with pytest.raises(ValueError, match="needs solver='ipopt'"):
         Transcription(make_task("glider"), solver="fatrop", soft_bounds_weight=1e3)
