@@ -181,6 +181,24 @@ def _train_one(cfg: dict[str, Any], out: str) -> str:
     return out
 
 
+def method_config(bench: BenchConfig, method: str) -> dict[str, Any]:
+    """The TrainConfig fields of ``method`` in this run (without budget, snapshots and seed): the shared settings,
+    the method's, then this run's overrides of the method. Training and the reports' ``train_settings`` read it."""
+    return {
+        "task": bench.task,
+        # By default the closed-loop sampler collects with the deployed guard; a method may choose another.
+        "cl_trust_region": bench.trust_region,
+        **bench.train,
+        **METHODS[method],
+        **bench.method_overrides.get(method, {}),
+    }
+
+
+def _settings(cfg: dict[str, Any]) -> dict[str, Any]:
+    """``cfg`` for JSON (tuples as lists)."""
+    return {k: (list(v) if isinstance(v, tuple) else v) for k, v in cfg.items()}
+
+
 def train_all(bench: BenchConfig, out: Path, workers: int) -> dict[tuple[str, int], Path]:
     """One run per (method, seed) to the largest budget, snapshots at every budget."""
     from joblib import Parallel, delayed
@@ -189,12 +207,7 @@ def train_all(bench: BenchConfig, out: Path, workers: int) -> dict[tuple[str, in
     for method in bench.methods:
         for seed in bench.seed_list or range(bench.seeds):
             cfg = {
-                "task": bench.task,
-                # By default the closed-loop sampler collects with the deployed guard; a method may choose another.
-                "cl_trust_region": bench.trust_region,
-                **bench.train,
-                **METHODS[method],
-                **bench.method_overrides.get(method, {}),
+                **method_config(bench, method),
                 "budget": max(bench.budgets),
                 "snapshots": tuple(bench.budgets),
                 "seed": seed,
@@ -431,7 +444,7 @@ def run_task(bench: BenchConfig, out: Path, workers: int, ship_dir: Path | None)
         "network_seed": rep["seed"],
         "budgets": list(bench.budgets),
         "methods": summary,
-        "train_settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in bench.train.items()},
+        "train_settings": _settings(method_config(bench, SHIPPED)),
         "wall_s": round(time.perf_counter() - t_start, 1),
     }
 
@@ -530,10 +543,7 @@ def aggregate_task(bench: BenchConfig, eval_dir: Path, network: Path, budget: in
             }
         },
         "aggregated_from": str(eval_dir),
-        "train_settings": {
-            **{k: (list(v) if isinstance(v, tuple) else v) for k, v in bench.train.items()},
-            **METHODS[SHIPPED],
-        },
+        "train_settings": _settings(method_config(bench, SHIPPED)),
     }
 
 

@@ -234,6 +234,10 @@ def test_bench_glider_block_carries_the_contract_fields_and_update_keeps_other_t
     glider = bench_mod.BenchConfig.for_task("glider", quick=False)
     assert (glider.horizon, glider.grid, glider.goal_blend) == (10, 6, 0.0)
     assert glider.train["value_cap"] == 1500.0 and glider.train["refit_steps"] == 0
+    # What the shipped method trains with (and what the reports' train_settings show) is the task's recipe.
+    recipe = bench_mod.method_config(glider, bench_mod.SHIPPED)
+    assert (recipe["cl_warmup_rounds"], recipe["cl_collect_refit"], recipe["refit_ensemble"]) == (0, False, 1)
+    assert recipe["value_cap"] == 1500.0 and recipe["task"] == "glider"
     rows = [
         {"seed": s, "success_rate": r, "heldout_success_rate": r, "query_error": {"median": 1.0, "p95": 2.0}}
         for s, r in enumerate([0.5, 0.9, 0.7])
