@@ -98,7 +98,7 @@ class TranscriptionSolution:
     steps: np.ndarray
     """``(n,)`` steps."""
     param_sensitivity: np.ndarray
-    """``d objective / d p`` for ``p = [x_init, tau, theta]`` (minus CasADi's ``lam_p``)."""
+    """``d objective / d p`` for ``p = [x_init, tau, theta, model_params]`` (minus CasADi's ``lam_p``)."""
     defect_multipliers: np.ndarray
     """``(n, nx)`` multipliers of the defects ``F(x_k, u_k, h_k) - x_{k+1} = 0``: row ``k`` is ``dV_{k+1}/dx_{k+1}``."""
     iterations: int
@@ -303,6 +303,10 @@ class Transcription:
             finite, graded label where the hard value is infinite). :meth:`bound_penalties` gives the terms.
         terminal_cost: ``(x, tau_remaining, theta) -> scalar``; default the task's ``l_f(x)``.
         n_theta: length of ``theta`` (terminal-cost parameters).
+        model_params: the task's varying physical parameters (``task.parameters``) enter the NLP as parameters after
+            ``theta``: the dynamics are ``f(x, u, params)`` and one built solver serves every robot in ``Theta``
+            (:meth:`solve`'s ``model_params``, default the task's own values); their sensitivities ``dV/dparams``
+            are the last entries of ``param_sensitivity``.
         substeps: RK4 substeps per interval (default: the task's).
         solver: ``"ipopt"`` or ``"fatrop"``.
         solver_options: options merged over the defaults of that solver.
@@ -337,6 +341,7 @@ class Transcription:
         soft_bounds_weight: float | None = None,
         terminal_cost: ca.Function | None = None,
         n_theta: int = 0,
+        model_params: bool = False,
         substeps: int | None = None,
         solver: Literal["ipopt", "fatrop"] = "ipopt",
         solver_options: dict[str, Any] | None = None,
@@ -374,6 +379,12 @@ class Transcription:
         self._knot_lo = np.vstack([np.tile(task.x_low, (n - 1, 1)), box_lo[None]])
         self._knot_hi = np.vstack([np.tile(task.x_high, (n - 1, 1)), box_hi[None]])
         self.n_theta = int(n_theta)
+        if model_params and task.parameters is None:
+            raise ValueError(
+                f"{task.name}: model_params=True needs a task that declares which parameters vary (Task.parameters)"
+            )
+        self.model_params = bool(model_params)
+        self.n_model_params = task.parameters.size if (model_params and task.parameters is not None) else 0
         self.substeps = task.rk4_substeps if substeps is None else int(substeps)
         self.solver_name = solver
         nx, nu = task.nx, task.nu
@@ -388,8 +399,13 @@ class Transcription:
         x_init = ca.MX.sym("x_init", nx)
         tau = ca.MX.sym("tau")
         theta = ca.MX.sym("theta", self.n_theta)
-        p = ca.vertcat(x_init, tau, theta)
-        F = task.rk4_step(self.substeps)
+        phys = ca.MX.sym("model_params", self.n_model_params)
+        p = ca.vertcat(x_init, tau, theta, phys)
+        step_fn = task.rk4_step_params(self.substeps) if self.model_params else task.rk4_step(self.substeps)
+        extra = [phys] if self.model_params else []
+
+        def F(x: ca.MX, u: ca.MX, h: ca.MX | float) -> ca.MX:
+            return step_fn(x, u, h, *extra)
 
         w: list[ca.MX] = []
         lbw: list[np.ndarray] = []
@@ -512,7 +528,7 @@ class Transcription:
             options = {**default_ipopt_options(), "expand": True, **(solver_options or {})}
         else:
             options = {**default_fatrop_options(), "expand": True, "equality": equality, **(solver_options or {})}
-        name = f"{task.name}_{solver}_n{n}"
+        name = f"{task.name}_{solver}_n{n}" + ("_theta" if self.model_params else "")
         self.codegen_library: Path | None = None
         compiled: ca.Function | None = None
         if codegen:
@@ -551,7 +567,7 @@ class Transcription:
 
     @property
     def num_parameters(self) -> int:
-        """Length of ``p = [x_init, tau, theta]``."""
+        """Length of ``p = [x_init, tau, theta, model_params]``."""
         return self._np
 
     # ---------------------------------------------------------- stage access
@@ -697,16 +713,27 @@ class Transcription:
         guess: np.ndarray | None = None,
         lam_g: np.ndarray | None = None,
         lam_x: np.ndarray | None = None,
+        model_params: np.ndarray | None = None,
     ) -> TranscriptionSolution:
         """Solve from ``x_init`` with time to go ``tau`` (inputs assumed validated by the caller).
 
         The initial guess is ``guess``, else the stored one (:meth:`set`, :meth:`set_guess`), else
-        :meth:`line_guess`; the bounds are the current ones (:meth:`set`).
+        :meth:`line_guess`; the bounds are the current ones (:meth:`set`). ``model_params``: the robot's
+        parameters (built with ``model_params=True``; default the task's own, ``task.theta``).
         """
         theta_arr = np.zeros(self.n_theta) if theta is None else np.asarray(theta, dtype=float).ravel()
         if theta_arr.size != self.n_theta:
             raise ValueError(f"theta must have {self.n_theta} entries, got {theta_arr.size}")
-        p = np.concatenate([np.asarray(x_init, dtype=float).ravel(), [float(tau)], theta_arr])
+        if model_params is not None and not self.model_params:
+            raise ValueError("model_params given to a transcription built without model_params=True")
+        phys = (
+            np.zeros(0)
+            if not self.model_params
+            else (self.task.theta if model_params is None else np.asarray(model_params, dtype=float).ravel())
+        )
+        if phys.size != self.n_model_params:
+            raise ValueError(f"model_params must have {self.n_model_params} entries, got {phys.size}")
+        p = np.concatenate([np.asarray(x_init, dtype=float).ravel(), [float(tau)], theta_arr, phys])
         if guess is not None:
             w0 = np.asarray(guess, dtype=float)
         elif self._guess is not None:

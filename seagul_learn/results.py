@@ -48,6 +48,12 @@ class SolveResult:
     """Wall time of the solve including fallbacks (s)."""
     attempts: list[str] = field(default_factory=list)
     """Which strategies were tried, in order (e.g. ``["fatrop:line", "ipopt:goal"]``)."""
+    theta: np.ndarray | None = None
+    """The robot's physical parameters of the solve (``task.parameters.names`` order), when the optimizer takes them
+    as NLP parameters (``TrajOptConfig(model_params=True)``); None otherwise."""
+    grad_theta: np.ndarray | None = None
+    """``dV/dtheta`` from the multipliers (minus CasADi's ``lam_p`` of the parameters; verified against central
+    finite differences of re-solved values in ``tests/test_parameters.py``); None without ``model_params``."""
 
     @property
     def num_knots(self) -> int:

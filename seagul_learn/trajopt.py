@@ -111,6 +111,10 @@ class TrajOptConfig:
     (``Transcription(soft_bounds_weight=M)``; IPOPT attempts only): the value where the bounds can be met, a finite,
     graded value where they cannot (tails from the glider's planned terminal states, from which the perch may be
     unreachable or a crash unavoidable). The penalties are part of the value and of every knot's label."""
+    model_params: bool = False
+    """The task's varying physical parameters (``task.parameters``) enter every solver as NLP parameters:
+    :meth:`TrajectoryOptimizer.solve` takes ``theta`` (default the task's own values), one built solver serves every
+    robot in ``Theta``, and ``SolveResult.grad_theta = dV/dtheta`` comes from the multipliers (CasADi's ``lam_p``)."""
     codegen: bool = True
     """Compile the NLP functions to C (cached on disk) when a compiler is available."""
     solver_options: tuple[tuple[str, Any], ...] = ()
@@ -216,6 +220,11 @@ class TrajectoryOptimizer:
         cfg = cfg.resolved(self.task)
         cfg.validate()  # again with the task's plan filled in (e.g. soft bounds with a default plan that has fatrop)
         self.config = cfg
+        if cfg.model_params and self.task.parameters is None:
+            raise ValueError(
+                f"{self.task.name}: model_params=True needs a task that declares which parameters vary "
+                "(Task.parameters)"
+            )
         self.horizon = self.task.num_steps if cfg.horizon is None else int(cfg.horizon)
         self._transcriptions: dict[str, Transcription] = {}
         self.counters = _Counters()
@@ -251,6 +260,7 @@ class TrajectoryOptimizer:
                 solver_options=self._solver_options(solver),
                 codegen=self.config.codegen,
                 soft_bounds_weight=self.config.soft_bounds_weight,
+                model_params=self.config.model_params,
             )
         return self._transcriptions[solver]
 
@@ -303,20 +313,41 @@ class TrajectoryOptimizer:
             raise ValueError(f"{self.task.name}: time to go must be positive, got {tau_f}")
         return x, tau_f
 
-    def solve(self, x_init: Any, tau: float | None = None) -> SolveResult:
-        """Solve from ``x_init`` with time to go ``tau`` (default the task's nominal).
+    def check_theta(self, theta: Any) -> np.ndarray | None:
+        """Validate the robot's parameters ``theta`` (an array in ``task.parameters.names`` order or a mapping; None:
+        the task's own); None when the optimizer was built without ``model_params``.
+
+        Raises:
+            ValueError: ``theta`` is malformed, or given to an optimizer built without ``model_params=True``.
+        """
+        if not self.config.model_params:
+            if theta is not None:
+                raise ValueError(
+                    f"{self.task.name}: theta needs TrajectoryOptimizer(..., model_params=True) (or solve the task "
+                    "task.with_params(theta))"
+                )
+            return None
+        space = self.task.parameters
+        assert space is not None  # checked at construction
+        return self.task.theta if theta is None else space.resolve(theta, self.task.theta, self.task.name)
+
+    def solve(self, x_init: Any, tau: float | None = None, theta: Any = None) -> SolveResult:
+        """Solve from ``x_init`` with time to go ``tau`` (default the task's nominal), for the robot ``theta``
+        (optimizers built with ``model_params=True``; default the task's own parameters).
 
         Never raises for an infeasible or hard start: the result then has ``success=False`` and the last status.
 
         Raises:
-            ValueError: ``x_init`` is not a finite ``(nx,)`` vector or ``tau`` is outside the task's range.
+            ValueError: ``x_init`` is not a finite ``(nx,)`` vector, ``tau`` is outside the task's range, or
+                ``theta`` is malformed (:meth:`check_theta`).
         """
         x, tau_f = self.check_inputs(x_init, tau)
+        phys = self.check_theta(theta)
         start = time.perf_counter()
         attempts: list[_Attempt] = []
         best: _Attempt | None = None
         for solver, gname in self._plan():
-            att = self._attempt(solver, gname, x, tau_f)
+            att = self._attempt(solver, gname, x, tau_f, phys)
             attempts.append(att)
             if att.sol.success:
                 best = att
@@ -331,7 +362,7 @@ class TrajectoryOptimizer:
                 label = f"{cfg.fallback_solver}:{gname}"
                 if label in tried:
                     continue
-                att = self._attempt(cfg.fallback_solver, gname, x, tau_f)
+                att = self._attempt(cfg.fallback_solver, gname, x, tau_f, phys)
                 attempts.append(att)
                 # Strictly lower by a margin, so ties keep the deterministic first choice.
                 if att.sol.success and att.sol.objective < best.sol.objective - 1e-6 * (1 + abs(best.sol.objective)):
@@ -352,11 +383,12 @@ class TrajectoryOptimizer:
             solve_time=elapsed,
             labels=[a.label for a in attempts],
             transcription=self._transcription(final.label.split(":")[0]),
+            theta=phys,
         )
 
-    def _attempt(self, solver: str, gname: str, x: np.ndarray, tau: float) -> _Attempt:
+    def _attempt(self, solver: str, gname: str, x: np.ndarray, tau: float, phys: np.ndarray | None = None) -> _Attempt:
         tr = self._transcription(solver)
-        sol = tr.solve(x, tau, guess=self.guess(gname, x, tau, solver))
+        sol = tr.solve(x, tau, guess=self.guess(gname, x, tau, solver), model_params=phys)
         return _Attempt(f"{solver}:{gname}", sol)
 
     def _result(
@@ -370,6 +402,7 @@ class TrajectoryOptimizer:
         solve_time: float,
         labels: list[str],
         transcription: Transcription,
+        theta: np.ndarray | None = None,
     ) -> SolveResult:
         nx = self.task.nx
         steps = np.asarray(sol.steps, dtype=float)
@@ -389,6 +422,8 @@ class TrajectoryOptimizer:
         grad_x = np.asarray(sol.param_sensitivity[:nx], dtype=float)
         grad_tau = float(sol.param_sensitivity[nx])
         knot_grads = np.vstack([grad_x[None, :], np.asarray(sol.defect_multipliers, dtype=float)])
+        # p = [x_init, tau, model_params] (no terminal-cost parameters here): dV/dtheta is the tail of the sensitivity.
+        grad_theta = None if theta is None else np.asarray(sol.param_sensitivity[nx + 1 :], dtype=float)
         return SolveResult(
             x_init=x.copy(),
             tau=tau,
@@ -406,6 +441,8 @@ class TrajectoryOptimizer:
             iterations=iterations,
             solve_time=solve_time,
             attempts=labels,
+            theta=None if theta is None else np.array(theta, dtype=float),
+            grad_theta=grad_theta,
         )
 
 

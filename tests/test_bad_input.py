@@ -167,7 +167,9 @@ def test_reset_time_to_go_and_keys_are_checked(env_id: str) -> None:
         ({"time_to_go": 10 * hi}, rf"time to go {10 * hi} outside \[0, {hi}\] s"),
         ({"time_to_go": 0.0}, "time to go must be positive, got 0.0"),
         ({"time_to_go": "soon"}, "time to go must be a number, got 'soon'"),
-        ({"stat": [0.0]}, r"unknown reset option\(s\) \['stat'\]; accepted: \['state', 'time_to_go'\]"),
+        ({"stat": [0.0]}, r"unknown reset option\(s\) \['stat'\]; accepted: \['params', 'state', 'time_to_go'\]"),
+        ({"params": {"mass": 1.0}}, r"unknown parameter\(s\) \['mass'\]; this task varies \["),
+        ({"params": [1.0]}, r"parameters must have shape \("),
     ]
     for options, message in cases:
         with pytest.raises(ValueError, match=message):

@@ -348,3 +348,78 @@ def test_glider_control_step_matches_fine_reference() -> None:
         )
         _, _, _, _, info = env.step(np.array([u]))
         np.testing.assert_allclose(info["state"], sol.y[:, -1], atol=1e-6)
+
+
+# ------------------------------------------------------------------------------------ another robot (params)
+ROBOT = {"m1": 1.15, "m2": 0.85, "l1": 1.1, "lc2": 0.9, "b1": 0.18, "b2": 0.06}  # inside Theta, every entry moved
+
+
+def test_mujoco_model_rebuilt_with_other_parameters_equals_the_analytic_model() -> None:
+    """``params`` are written into the MJCF model: at a robot that is not the nominal one MuJoCo's mass matrix and
+    bias equal the retyped Lagrangian reference and the task's own extras at those parameters."""
+    robot = make_task("acrobot").with_params(ROBOT)
+    ref = LagrangianAcrobot(robot.params)
+    env = AcrobotMujocoEnv(params=ROBOT)
+    m, d = env.model, env.data
+    assert env.params == pytest.approx(ROBOT)
+    rng = np.random.default_rng(5)
+    for x in _random_states(rng, 20):
+        d.qpos[:] = x[:2]
+        d.qvel[:] = x[2:]
+        mujoco.mj_forward(m, d)
+        M = np.zeros((2, 2))
+        mujoco.mj_fullM(m, d, M)
+        bias = d.qfrc_bias - d.qfrc_passive
+        np.testing.assert_allclose(M, ref.mass_matrix(x[:2]), atol=1e-9)
+        np.testing.assert_allclose(bias, ref.bias(x[:2], x[2:]), atol=1e-9)
+        np.testing.assert_allclose(M, np.asarray(robot.extras["mass_matrix"](x[:2])), atol=1e-9)
+    # And the nominal model is not that robot (the parameters reached MuJoCo).
+    nominal = AcrobotMujocoEnv()
+    mujoco.mj_forward(nominal.model, nominal.data)
+    assert not np.isclose(nominal.model.body_mass[1], m.body_mass[1])
+
+
+def test_envs_with_params_simulate_the_rebuilt_task_and_randomise_per_episode() -> None:
+    import pickle
+
+    import gymnasium as gym
+
+    robot = make_task("acrobot").with_params(ROBOT)
+    sim = robot.simulator(0.1)
+    analytic, mj = AcrobotEnv(params=ROBOT), gym.make("SeagulAcrobotMujoco-v0", params=ROBOT).unwrapped
+    x0 = np.array([np.pi - 0.2, 0.1, 0.3, -0.2])
+    analytic.reset(options={"state": x0, "time_to_go": 1.05})  # a shortened last step: the variable-h kernel
+    mj.reset(options={"state": x0, "time_to_go": 1.05})
+    x = x0.copy()
+    for k in range(11):
+        u = np.array([8.0 * np.sin(k)])
+        # Ten full periods, then the 50 ms rest with the period's 20 RK4 substeps (as the env's variable-h kernel).
+        x = np.asarray(sim(x, u) if k < 10 else robot.rk4_step(20)(x, u, 0.05)).ravel()
+        xa = analytic.step(u)[4]["state"]
+        xm = mj.step(u)[4]["state"]
+        np.testing.assert_allclose(xa, x, rtol=1e-12, atol=1e-12)
+        # MuJoCo's short step takes 10 steps of 5 ms where the analytic env keeps 20 substeps: RK4 error apart.
+        np.testing.assert_allclose(xm, xa, atol=1e-9 if k < 10 else 1e-5)
+    nominal = AcrobotEnv()
+    nominal.reset(options={"state": x0})
+    analytic.reset(options={"state": x0})
+    u = np.array([8.0])
+    assert np.abs(nominal.step(u)[4]["state"] - analytic.step(u)[4]["state"]).max() > 1e-3  # another robot
+    # Domain randomisation: a mapping is relative to the model ({} is the model itself); bad params change nothing.
+    env = gym.make("SeagulAcrobot-v0")
+    env.reset(options={"params": {"b1": 0.2}})
+    assert env.unwrapped.params["b1"] == 0.2 and env.unwrapped.params["m2"] == 1.0
+    env.reset(options={"params": {"m2": 1.1}})
+    assert env.unwrapped.params["b1"] == 0.1 and env.unwrapped.params["m2"] == 1.1
+    with pytest.raises(ValueError, match=r"unknown parameter\(s\) \['mass'\]"):
+        env.reset(options={"params": {"mass": 2.0}})
+    assert env.unwrapped.params["m2"] == 1.1
+    env.reset(options={"params": {}})
+    assert env.unwrapped.task is env.unwrapped.model_task
+    theta = make_task("acrobot").parameters.sample(np.random.default_rng(0))
+    env.reset(options={"params": theta})
+    np.testing.assert_array_equal(env.unwrapped.task.theta, theta)
+    clone = pickle.loads(pickle.dumps(AcrobotEnv(params=ROBOT)))
+    assert clone.params == pytest.approx(ROBOT) and clone.model_task is make_task("acrobot")
+    glider = gym.make("SeagulGlider-v0", params={"m": 0.09}).unwrapped
+    assert glider.params["m"] == 0.09 and glider.model_task.params.m == 0.08

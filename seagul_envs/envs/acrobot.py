@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from seagul_envs.envs.base import TaskSimulatorEnv, resolve_task
@@ -59,9 +61,13 @@ class AcrobotEnv(TaskSimulatorEnv):
 
     ## Arguments
 
-    ``gym.make("SeagulAcrobot-v0", dt=0.1, render_mode=None, task=None, max_substep=None)``: ``dt`` is the control
-    period (s); ``task`` a custom acrobot :class:`~seagul_envs.tasks.base.Task` (e.g.
-    ``make_acrobot_task(AcrobotParams(b1=0))``), default ``make_task("acrobot")``; ``render_mode`` is
+    ``gym.make("SeagulAcrobot-v0", dt=0.1, render_mode=None, task=None, max_substep=None, params=None)``: ``dt`` is
+    the control period (s); ``task`` a custom acrobot :class:`~seagul_envs.tasks.base.Task` (e.g.
+    ``make_acrobot_task(AcrobotParams(b1=0))``), default ``make_task("acrobot")``; ``params`` another robot than the
+    task's model, ``{name: value}`` of ``task.parameters.names`` (``m1, m2, l1, lc2, b1, b2``; the rest the model's)
+    or a full vector: the env simulates ``task.with_params(params)`` (``env.unwrapped.task``; the model stays
+    ``env.unwrapped.model_task``), and ``reset(options={"params": ...})`` changes it per episode (domain
+    randomisation); ``render_mode`` is
     ``"rgb_array"`` (headless) or ``"human"``; ``max_substep`` the largest RK4 substep (default
     ``task.max_sim_substep`` = 5 ms). Accuracy of one 0.1 s step against a 1e-12 reference, 5 ms substeps: ~5e-8 at
     X0 speeds, ~1e-6 up to 6 rad/s, ~2e-4 at 10-20 rad/s; at the ~30 rad/s of violent swings use
@@ -79,12 +85,14 @@ class AcrobotEnv(TaskSimulatorEnv):
         render_mode: str | None = None,
         task: Task | None = None,
         max_substep: float | None = None,
+        params: Any = None,
     ) -> None:
         super().__init__(
             resolve_task(task, "acrobot", type(self).__name__, self.params_class),
             dt=dt,
             render_mode=render_mode,
             max_substep=max_substep,
+            params=params,
         )
 
     def _render_frame(self) -> np.ndarray:

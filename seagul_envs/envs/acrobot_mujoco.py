@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
+from typing import Any
 
 import mujoco
 import numpy as np
@@ -52,23 +53,51 @@ class AcrobotMujocoEnv(SeagulEnv):
 
     ## Arguments
 
-    ``gym.make("SeagulAcrobotMujoco-v0", dt=0.1, render_mode=None, max_substep=None)``: control period (s),
-    render mode (``"rgb_array"`` draws headless with numpy, MuJoCo's OpenGL renderer is not needed), and the largest
-    MuJoCo timestep inside a period (default ``task.max_sim_substep`` = 5 ms).
+    ``gym.make("SeagulAcrobotMujoco-v0", dt=0.1, render_mode=None, max_substep=None, params=None)``: control period
+    (s), render mode (``"rgb_array"`` draws headless with numpy, MuJoCo's OpenGL renderer is not needed), the largest
+    MuJoCo timestep inside a period (default ``task.max_sim_substep`` = 5 ms), and the robot's parameters
+    (``{name: value}`` of ``task.parameters.names``: masses, link-1 length, link-2 centre of mass, damping; written
+    into the MJCF model, equal to the analytic env with the same ``params``; ``reset(options={"params": ...})``
+    changes them per episode).
     """
 
     metadata = {"render_modes": ["human", "rgb_array"], "render_fps": 10}  # noqa: RUF012 (Gymnasium convention)
 
     def __init__(
-        self, dt: float | None = None, render_mode: str | None = None, max_substep: float | None = None
+        self,
+        dt: float | None = None,
+        render_mode: str | None = None,
+        max_substep: float | None = None,
+        params: Any = None,
     ) -> None:
-        super().__init__(make_task("acrobot"), dt=dt, render_mode=render_mode, max_substep=max_substep)
+        super().__init__(make_task("acrobot"), dt=dt, render_mode=render_mode, max_substep=max_substep, params=params)
 
     def _restore_runtime(self) -> None:
         self.model = mujoco.MjModel.from_xml_path(str(ACROBOT_XML))
         self.data = mujoco.MjData(self.model)
         self._stage_cost = BufferedFunction(self.task.stage_cost)
         self._n_sub = max(1, math.ceil(self.dt / self.max_substep - 1e-9))  # equal MuJoCo steps per period
+        self._apply_params()
+
+    def _params_changed(self) -> None:
+        self._apply_params()
+
+    def _apply_params(self) -> None:
+        """Write the robot's :class:`AcrobotParams` into the loaded MJCF: link masses, centres of mass, inertias,
+        the elbow's position on link 1 and the joint damping (the XML holds the nominal ones), then recompute
+        MuJoCo's derived constants."""
+        p, m = self.task.params, self.model
+        link1 = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "link1")
+        link2 = mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_BODY, "link2")
+        m.body_mass[link1], m.body_mass[link2] = p.m1, p.m2
+        m.body_ipos[link1] = (0.0, 0.0, -p.lc1)
+        m.body_ipos[link2] = (0.0, 0.0, -p.lc2)
+        m.body_inertia[link1] = (p.Ic1, p.Ic1, p.Ic1)
+        m.body_inertia[link2] = (p.Ic2, p.Ic2, p.Ic2)
+        m.body_pos[link2] = (0.0, 0.0, -p.l1)
+        for joint, damping in (("shoulder", p.b1), ("elbow", p.b2)):
+            m.dof_damping[m.jnt_dofadr[mujoco.mj_name2id(m, mujoco.mjtObj.mjOBJ_JOINT, joint)]] = damping
+        mujoco.mj_setConst(m, self.data)
 
     def _runtime_keys(self) -> tuple[str, ...]:
         return ("model", "data", "_stage_cost", "_n_sub")

@@ -34,7 +34,7 @@ from seagul_envs.rendering import HumanViewer
 from seagul_envs.tasks import BUILTIN_TASKS, make_task, shared_task
 from seagul_envs.tasks.base import Task
 
-_RESET_OPTION_KEYS = frozenset({"state", "time_to_go"})
+_RESET_OPTION_KEYS = frozenset({"state", "time_to_go", "params"})
 # Observation bounds of the state entries: Gymnasium's own convention (CartPole) for unbounded coordinates.
 # Infinite bounds make `check_env` warn, and the task bounds cannot serve: a crash step observes a state past them.
 _FLOAT32_MAX = float(np.finfo(np.float32).max)
@@ -80,22 +80,42 @@ def resolve_task(task: Task | None, name: str, env_name: str, params_class: type
     return task
 
 
-def step_function(task: Task, dt: float, max_substep: float | None = None) -> ca.Function:
-    """``(x, u) -> (x(t + dt), l(x, u))``: ``task.simulator(dt, max_substep)`` and the stage cost in one call."""
+def step_function(task: Task, dt: float, max_substep: float | None = None, params: bool = False) -> ca.Function:
+    """``(x, u) -> (x(t + dt), l(x, u))``: ``task.simulator(dt, max_substep)`` and the stage cost in one call; with
+    ``params`` the map of the parametric dynamics, ``(x, u, theta) -> ...`` (the same RK4 substeps)."""
     x = ca.SX.sym("x", task.nx)
     u = ca.SX.sym("u", task.nu)
-    sim = task.simulator(dt, max_substep)
-    return ca.Function(f"{task.name}_env_step", [x, u], [sim(x, u), task.stage_cost(x, u)], ["x", "u"], ["xn", "l"])
+    if not params:
+        sim = task.simulator(dt, max_substep)
+        return ca.Function(f"{task.name}_env_step", [x, u], [sim(x, u), task.stage_cost(x, u)], ["x", "u"], ["xn", "l"])
+    max_substep = task.max_sim_substep if max_substep is None else max_substep
+    substeps = max(1, int(np.ceil(dt / max_substep - 1e-9)))  # as Task.simulator
+    theta = ca.SX.sym("theta", task.parameters.size if task.parameters is not None else 0)
+    x_next = task.rk4_step_params(substeps)(x, u, dt, theta)
+    return ca.Function(
+        f"{task.name}_env_step_theta", [x, u, theta], [x_next, task.stage_cost(x, u)], ["x", "u", "theta"], ["xn", "l"]
+    )
 
 
-def variable_step_function(task: Task, substeps: int) -> ca.Function:
-    """``(x, u, h) -> (x(t + h), l(x, u))`` with ``substeps`` RK4 substeps (``task.rk4_step``) and the stage cost."""
+def variable_step_function(task: Task, substeps: int, params: bool = False) -> ca.Function:
+    """``(x, u, h) -> (x(t + h), l(x, u))`` with ``substeps`` RK4 substeps (``task.rk4_step``) and the stage cost;
+    with ``params`` ``(x, u, h, theta) -> ...`` of the parametric dynamics."""
     x = ca.SX.sym("x", task.nx)
     u = ca.SX.sym("u", task.nu)
     h = ca.SX.sym("h")
-    x_next = task.rk4_step(substeps)(x, u, h)
+    if not params:
+        x_next = task.rk4_step(substeps)(x, u, h)
+        return ca.Function(
+            f"{task.name}_env_step_h", [x, u, h], [x_next, task.stage_cost(x, u)], ["x", "u", "h"], ["xn", "l"]
+        )
+    theta = ca.SX.sym("theta", task.parameters.size if task.parameters is not None else 0)
+    x_next = task.rk4_step_params(substeps)(x, u, h, theta)
     return ca.Function(
-        f"{task.name}_env_step_h", [x, u, h], [x_next, task.stage_cost(x, u)], ["x", "u", "h"], ["xn", "l"]
+        f"{task.name}_env_step_h_theta",
+        [x, u, h, theta],
+        [x_next, task.stage_cost(x, u)],
+        ["x", "u", "h", "theta"],
+        ["xn", "l"],
     )
 
 
@@ -115,8 +135,11 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
         dt: float | None = None,
         render_mode: str | None = None,
         max_substep: float | None = None,
+        params: Any = None,
     ) -> None:
-        self.task = task
+        # The model the env was made for, and the robot it simulates (the model unless ``params`` say otherwise).
+        self.model_task = task
+        self.task = task if params is None else self._robot(params)
         self.dt = _positive_seconds(task.control_period if dt is None else dt, f"{task.name}: dt")
         self.max_substep = _positive_seconds(
             task.max_sim_substep if max_substep is None else max_substep, f"{task.name}: max_substep"
@@ -179,6 +202,27 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
         """State-dependent limits on the (already box-clipped) input over a step of ``h``; default none."""
         return u
 
+    def _params_changed(self) -> None:
+        """The simulated robot (``self.task``) changed at a reset: update the simulator (default: rebuild)."""
+        self._restore_runtime()
+
+    def _robot(self, params: Any) -> Task:
+        """The task of the robot with ``params`` (a mapping of some of ``task.parameters.names``, the rest the
+        model's; or a full vector); ValueError naming the problem."""
+        if self.model_task.parameters is None:
+            raise ValueError(
+                f"{self.model_task.name}: params need a task that declares which parameters vary (Task.parameters)"
+            )
+        robot = self.model_task.with_params(params)
+        return self.model_task if np.array_equal(robot.theta, self.model_task.theta) else robot
+
+    @property
+    def params(self) -> dict[str, float]:
+        """The simulated robot's varying parameters ``{name: value}`` (empty for a task without parameters)."""
+        if self.task.parameters is None:
+            return {}
+        return self.task.parameters.as_dict(self.task.theta)
+
     # ------------------------------------------------------------- properties
     @property
     def state(self) -> np.ndarray:
@@ -199,11 +243,16 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
 
     # ------------------------------------------------------------- Gymnasium
     def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[np.ndarray, dict]:
-        """Start an episode; ``options={"state": x0, "time_to_go": tau}`` (both optional) choose the start.
+        """Start an episode; ``options={"state": x0, "time_to_go": tau, "params": theta}`` (all optional) choose the
+        start and the robot.
 
         Without ``"state"`` the start is a uniform draw from X0 with ``self.np_random``; without ``"time_to_go"`` it
-        is the task's nominal ``tau``. Raises ValueError for unknown option keys, a state of the wrong shape, with
-        NaN/inf or outside the task's state bounds, and a time to go that is not in ``(0, max T0]``.
+        is the task's nominal ``tau``. ``"params"`` (domain randomisation) sets the simulated robot from this episode
+        on: a mapping ``{name: value}`` of some of ``task.parameters.names`` (the others are the model's, so ``{}``
+        is the model itself) or a full vector, e.g. ``env.unwrapped.model_task.parameters.sample(rng)``; without it
+        the robot stays what it was. Raises ValueError for unknown option keys, a state of the wrong shape, with
+        NaN/inf or outside the task's state bounds, a time to go that is not in ``(0, max T0]``, and malformed
+        params.
         """
         super().reset(seed=seed)
         options = {} if options is None else options
@@ -215,6 +264,7 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
                 f"{self.task.name}: unknown reset option(s) {sorted(unknown)}; accepted: {sorted(_RESET_OPTION_KEYS)}"
             )
         # Validate everything before touching the episode, so a bad call leaves the env as it was.
+        robot = self._robot(options["params"]) if options.get("params") is not None else None
         if options.get("state") is not None:
             try:
                 x0 = self.task.check_state(options["state"], "reset state")
@@ -236,6 +286,9 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
         else:
             tau = float(self.task.tau_nominal)
 
+        if robot is not None:
+            self.task = robot
+            self._params_changed()
         self._set_sim_state(x0)
         self._x = x0.copy()
         self._tau = tau
@@ -358,13 +411,16 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
         state["_viewer"] = None
         # A built-in task's shared object is restored by name (cheap, keeps the simulator cache); any other task
         # (custom, or registered with register_task, which the receiving process may not know) pickles by value.
-        if self.task is _shared_task(self.task.name):
-            state["task"] = self.task.name
+        for key in ("task", "model_task"):
+            if state[key] is _shared_task(state[key].name):
+                state[key] = state[key].name
         return state
 
     def __setstate__(self, state: dict[str, Any]) -> None:
-        if isinstance(state["task"], str):
-            state["task"] = make_task(state["task"])
+        for key in ("task", "model_task"):
+            if isinstance(state.get(key), str):
+                state[key] = make_task(state[key])
+        state.setdefault("model_task", state["task"])
         self.__dict__.update(state)
         self._restore_runtime()
         if self._n_steps > 0:
@@ -400,8 +456,22 @@ class TaskSimulatorEnv(SeagulEnv):
     """
 
     def _restore_runtime(self) -> None:
-        self._kernel = BufferedFunction(step_function(self.task, self.dt, self.max_substep))
+        # The model's own kernels; another robot (params) steps the parametric ones with its theta as an input, so
+        # domain randomisation never builds a kernel per reset.
+        if self.task is self.model_task:
+            self._kernel = BufferedFunction(step_function(self.task, self.dt, self.max_substep))
+        else:
+            self._kernel = BufferedFunction(step_function(self.model_task, self.dt, self.max_substep, params=True))
+            self._kernel.args[2][:] = self.task.theta
         self._kernel_h: BufferedFunction | None = None  # built on the first shortened step
+
+    def _params_changed(self) -> None:
+        if self.task is not self.model_task and self._kernel.function.n_in() == 3:
+            self._kernel.args[2][:] = self.task.theta
+            if self._kernel_h is not None:
+                self._kernel_h.args[3][:] = self.task.theta
+        else:
+            self._restore_runtime()
 
     def _runtime_keys(self) -> tuple[str, ...]:
         return ("_kernel", "_kernel_h")
@@ -415,7 +485,10 @@ class TaskSimulatorEnv(SeagulEnv):
         else:
             if self._kernel_h is None:
                 substeps = max(1, math.ceil(self.dt / self.max_substep - 1e-9))  # h < dt: substeps stay shorter
-                self._kernel_h = BufferedFunction(variable_step_function(self.task, substeps))
+                parametric = self._kernel.function.n_in() == 3
+                self._kernel_h = BufferedFunction(variable_step_function(self.model_task, substeps, parametric))
+                if parametric:
+                    self._kernel_h.args[3][:] = self.task.theta
             kernel = self._kernel_h
             kernel.args[2][0] = h
         x_arg, u_arg = kernel.args[0], kernel.args[1]

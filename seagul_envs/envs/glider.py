@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 
 from seagul_envs.envs.base import TaskSimulatorEnv, resolve_task
@@ -66,9 +68,11 @@ class GliderEnv(TaskSimulatorEnv):
 
     ## Arguments
 
-    ``gym.make("SeagulGlider-v0", dt=0.025, render_mode=None, task=None, max_substep=None)``: control period (s),
-    render mode (``"rgb_array"`` headless, or ``"human"``), optionally a custom glider Task, and the largest RK4
-    substep (default ``task.max_sim_substep`` = 5 ms; one 25 ms step then matches a 1e-12 reference to < 1e-6).
+    ``gym.make("SeagulGlider-v0", dt=0.025, render_mode=None, task=None, max_substep=None, params=None)``: control
+    period (s), render mode (``"rgb_array"`` headless, or ``"human"``), optionally a custom glider Task, the largest
+    RK4 substep (default ``task.max_sim_substep`` = 5 ms; one 25 ms step then matches a 1e-12 reference to < 1e-6),
+    and another glider than the model: ``{name: value}`` of ``m, S_w, S_e, rho`` (the rest the model's), also per
+    episode with ``reset(options={"params": ...})``.
     """
 
     params_class: type = GliderParams
@@ -82,12 +86,14 @@ class GliderEnv(TaskSimulatorEnv):
         render_mode: str | None = None,
         task: Task | None = None,
         max_substep: float | None = None,
+        params: Any = None,
     ) -> None:
         super().__init__(
             resolve_task(task, "glider", type(self).__name__, self.params_class),
             dt=dt,
             render_mode=render_mode,
             max_substep=max_substep,
+            params=params,
         )
         self._trail: list[tuple[float, float]] = []
 

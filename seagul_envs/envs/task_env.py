@@ -75,6 +75,7 @@ class TaskEnv(TaskSimulatorEnv):
         render_mode: str | None = None,
         max_substep: float | None = None,
         renderer: Renderer | None = None,
+        params: Any = None,
     ) -> None:
         validate_task(task)
         renderer = task.extras.get("renderer") if renderer is None else renderer
@@ -88,7 +89,7 @@ class TaskEnv(TaskSimulatorEnv):
             )
         self.renderer = renderer
         self.metadata = {"render_modes": ["human", "rgb_array"] if renderer is not None else [], "render_fps": 10}
-        super().__init__(task, dt=dt, render_mode=render_mode, max_substep=max_substep)
+        super().__init__(task, dt=dt, render_mode=render_mode, max_substep=max_substep, params=params)
         self.metadata["render_fps"] = max(1, round(1.0 / self.dt))
 
     def _render_frame(self) -> np.ndarray:

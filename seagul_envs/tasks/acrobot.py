@@ -26,6 +26,7 @@ import numpy as np
 import scipy.linalg
 
 from seagul_envs.tasks.base import Task, rk4_map
+from seagul_envs.tasks.parameters import ParameterSpace, parametric_dynamics
 from seagul_envs.tasks.profile import (
     DEFAULT_PRESETS,
     EvaluationGrid,
@@ -184,11 +185,17 @@ def acrobot_bias(q: ca.SX, dq: ca.SX, p: AcrobotParams) -> ca.SX:
     return coriolis - gravity + damping
 
 
-def make_acrobot_task(params: AcrobotParams | None = None) -> Task:
-    """Build the acrobot :class:`Task` (see the module docstring for the choices)."""
-    p = params or AcrobotParams()
-    x = ca.SX.sym("x", 4)
-    u = ca.SX.sym("u", 1)
+THETA_NAMES: tuple[str, ...] = ("m1", "m2", "l1", "lc2", "b1", "b2")
+"""The acrobot's parameters that may vary (docs/spec.md §14): link masses, the length of link 1, link 2's centre of
+mass, the joint damping. The inertias about the centres of mass stay the model's."""
+THETA_UNITS: tuple[str, ...] = ("kg", "kg", "m", "m", "N m s", "N m s")
+THETA_SPREAD = 0.2
+"""``Theta`` is the task's value +- 20 % for the masses and lengths, and from half to twice its damping (the
+nominal 0.1 N m s: [0.05, 0.2])."""
+
+
+def acrobot_xdot(x: ca.SX, u: ca.SX, p: AcrobotParams) -> ca.SX:
+    """``xdot = f(x, u)`` for the parameters ``p`` (numbers, or SX symbols for the parametric dynamics)."""
     q, dq = x[:2], x[2:]
     M = acrobot_mass_matrix(q, p)
     bias = acrobot_bias(q, dq, p)
@@ -196,7 +203,38 @@ def make_acrobot_task(params: AcrobotParams | None = None) -> Task:
     rhs = ca.vertcat(-bias[0], u[0] - bias[1])
     det = M[0, 0] * M[1, 1] - M[0, 1] * M[1, 0]
     ddq = ca.vertcat(M[1, 1] * rhs[0] - M[0, 1] * rhs[1], -M[1, 0] * rhs[0] + M[0, 0] * rhs[1]) / det
-    dynamics = ca.Function("acrobot_f", [x, u], [ca.vertcat(dq, ddq)], ["x", "u"], ["xdot"])
+    return ca.vertcat(dq, ddq)
+
+
+def acrobot_parameter_space(p: AcrobotParams) -> ParameterSpace:
+    """``Theta`` around the parameters ``p`` (:data:`THETA_SPREAD`) and the dynamics ``f(x, u, theta)``."""
+    own = np.array([getattr(p, n) for n in THETA_NAMES], dtype=float)
+    low, high = own * (1 - THETA_SPREAD), own * (1 + THETA_SPREAD)
+    low[4:], high[4:] = own[4:] / 2, own[4:] * 2
+    return ParameterSpace(
+        names=THETA_NAMES,
+        low=low,
+        high=high,
+        units=THETA_UNITS,
+        dynamics=parametric_dynamics("acrobot", 4, 1, THETA_NAMES, p, acrobot_xdot),
+        extras=_physics_extras,
+    )
+
+
+def _physics_extras(p: AcrobotParams) -> dict[str, ca.Function]:
+    qs, dqs = ca.SX.sym("q", 2), ca.SX.sym("dq", 2)
+    return {
+        "mass_matrix": ca.Function("acrobot_M", [qs], [acrobot_mass_matrix(qs, p)]),
+        "bias": ca.Function("acrobot_bias", [qs, dqs], [acrobot_bias(qs, dqs, p)]),
+    }
+
+
+def make_acrobot_task(params: AcrobotParams | None = None) -> Task:
+    """Build the acrobot :class:`Task` (see the module docstring for the choices)."""
+    p = params or AcrobotParams()
+    x = ca.SX.sym("x", 4)
+    u = ca.SX.sym("u", 1)
+    dynamics = ca.Function("acrobot_f", [x, u], [acrobot_xdot(x, u, p)], ["x", "u"], ["xdot"])
 
     goal = np.array([np.pi, 0.0, 0.0, 0.0])
     Q = np.diag(p.Q)
@@ -209,7 +247,6 @@ def make_acrobot_task(params: AcrobotParams | None = None) -> Task:
 
     half = np.asarray(p.x0_half_width)
     inf4 = np.full(4, np.inf)
-    qs, dqs = ca.SX.sym("q", 2), ca.SX.sym("dq", 2)
     return Task(
         name="acrobot",
         state_names=("th1", "th2", "dth1", "dth2"),
@@ -234,13 +271,8 @@ def make_acrobot_task(params: AcrobotParams | None = None) -> Task:
         rk4_substeps=p.rk4_substeps,
         control_period=p.control_period,
         params=p,
-        extras={
-            "Qf": Qf,
-            "Q": Q,
-            "R": np.array([[p.R]]),
-            "mass_matrix": ca.Function("acrobot_M", [qs], [acrobot_mass_matrix(qs, p)]),
-            "bias": ca.Function("acrobot_bias", [qs, dqs], [acrobot_bias(qs, dqs, p)]),
-        },
+        parameters=acrobot_parameter_space(p),
+        extras={"Qf": Qf, "Q": Q, "R": np.array([[p.R]]), **_physics_extras(p)},
         profile=acrobot_profile(p),
     )
 

@@ -21,6 +21,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
+from seagul_envs.tasks.parameters import ParameterSpace
 from seagul_envs.tasks.profile import TaskProfile
 
 _TASK_NAME = re.compile(r"[A-Za-z][A-Za-z0-9]*(?:_[A-Za-z0-9]+)*")  # a CasADi Function name that takes "_suffix"
@@ -84,6 +85,9 @@ class Task:
     """Largest RK4 substep of the simulator inside one control period (seconds)."""
     params: Any = None
     """The task's physical parameter dataclass (for reference, rendering and tests)."""
+    parameters: ParameterSpace | None = None
+    """Which fields of ``params`` may vary, their box ``Theta`` and the dynamics ``f(x, u, theta)``
+    (:class:`~seagul_envs.tasks.parameters.ParameterSpace`); None for a task whose model is fixed."""
     extras: dict[str, Any] = field(default_factory=dict)
     """Task-specific symbolic helpers (e.g. the acrobot's mass matrix for the MuJoCo test)."""
     profile: TaskProfile = field(default_factory=TaskProfile)
@@ -106,6 +110,51 @@ class Task:
     def tau_is_fixed(self) -> bool:
         """True when T0 is a single value (the acrobot)."""
         return self.tau_range[0] == self.tau_range[1]
+
+    # ------------------------------------------------------------ parameters
+    @property
+    def theta(self) -> np.ndarray:
+        """This task's values of the varying parameters (``parameters.names`` read from ``params``).
+
+        Raises:
+            ValueError: the task declares no :attr:`parameters`.
+        """
+        return self._space("theta").values_of(self.params)
+
+    def _space(self, what: str) -> ParameterSpace:
+        if self.parameters is None:
+            raise ValueError(f"{self.name}: {what} needs a task that declares which parameters vary (Task.parameters)")
+        return self.parameters
+
+    def with_params(self, theta: Any) -> Task:
+        """The same task for another robot: the dynamics at ``theta``, everything else (costs, bounds, X0, profile)
+        as here. ``theta`` is a vector in ``parameters.names`` order or a mapping ``{name: value}``; names it leaves
+        out keep this task's values. ``params`` records the new values (rendering, the MuJoCo model read them), and
+        the fingerprint differs whenever the dynamics do.
+
+        Raises:
+            ValueError: the task declares no parameters, or ``theta`` is malformed (a wrong length, an unknown name,
+                NaN/inf, a negative value).
+        """
+        space = self._space("with_params")
+        values = space.resolve(theta, self.theta, self.name)
+        params = dataclasses.replace(self.params, **space.as_dict(values))
+        x = ca.SX.sym("x", self.nx)
+        u = ca.SX.sym("u", self.nu)
+        dynamics = ca.Function(self.dynamics.name(), [x, u], [space.dynamics(x, u, values)], ["x", "u"], ["xdot"])
+        extras = dict(self.extras)
+        if space.extras is not None:
+            extras.update(space.extras(params))
+        return dataclasses.replace(self, dynamics=dynamics, params=params, extras=extras)
+
+    def rk4_step_params(self, substeps: int | None = None) -> ca.Function:
+        """``F(x, u, h, theta)``: :meth:`rk4_step` of the parametric dynamics ``parameters.dynamics``.
+
+        Raises:
+            ValueError: the task declares no parameters.
+        """
+        space = self._space("rk4_step_params")
+        return _rk4_param_step(self, space, self.rk4_substeps if substeps is None else int(substeps))
 
     # ------------------------------------------------------------ integrators
     def rk4_step(self, substeps: int | None = None) -> ca.Function:
@@ -429,6 +478,25 @@ def validate_task(task: Any) -> Task:
     positive("max_sim_substep", task.max_sim_substep)
     if not isinstance(task.extras, dict):
         problems.append(f"extras must be a dict, got {type(task.extras).__name__}")
+    if task.parameters is not None:
+        if not isinstance(task.parameters, ParameterSpace):
+            problems.append(f"parameters must be a seagul_envs ParameterSpace, got {type(task.parameters).__name__}")
+        else:
+            problems += task.parameters.problems(task.params, nx, nu)
+            if not problems:
+                theta = task.parameters.values_of(task.params)
+                rng = np.random.default_rng(0)
+                for _ in range(3):
+                    xs = rng.uniform(-1, 1, nx) + np.where(np.isfinite(task.goal), task.goal, 0.0)
+                    us = rng.uniform(-1, 1, nu)
+                    a = np.asarray(task.dynamics(xs, us)).ravel()
+                    b = np.asarray(task.parameters.dynamics(xs, us, theta)).ravel()
+                    if not np.allclose(a, b, rtol=1e-9, atol=1e-9):
+                        problems.append(
+                            "parameters.dynamics at the task's own parameters must equal dynamics, got "
+                            f"{b.tolist()} against {a.tolist()} at x = {xs.tolist()}, u = {us.tolist()}"
+                        )
+                        break
     if not isinstance(task.profile, TaskProfile):
         problems.append(f"profile must be a seagul_envs TaskProfile, got {type(task.profile).__name__}")
     else:
@@ -438,20 +506,35 @@ def validate_task(task: Any) -> Task:
     return task
 
 
-def rk4_map(dynamics: ca.Function, nx: int, nu: int, substeps: int, name: str = "rk4") -> ca.Function:
-    """``F(x, u, h)``: ``substeps`` equal RK4 substeps of ``dynamics`` over ``h`` with ``u`` held constant."""
+def rk4_map(
+    dynamics: ca.Function, nx: int, nu: int, substeps: int, name: str = "rk4", n_params: int = 0
+) -> ca.Function:
+    """``F(x, u, h)``: ``substeps`` equal RK4 substeps of ``dynamics`` over ``h`` with ``u`` held constant; with
+    ``n_params > 0`` the dynamics are ``f(x, u, theta)`` and the map ``F(x, u, h, theta)``."""
     x = ca.SX.sym("x", nx)
     u = ca.SX.sym("u", nu)
     h = ca.SX.sym("h")
+    theta = ca.SX.sym("theta", n_params)
+    extra = [theta] if n_params else []
+
+    def f(xs: ca.SX) -> ca.SX:
+        return dynamics(xs, u, *extra)
+
     dt = h / substeps
     xs = x
     for _ in range(substeps):
-        k1 = dynamics(xs, u)
-        k2 = dynamics(xs + dt / 2 * k1, u)
-        k3 = dynamics(xs + dt / 2 * k2, u)
-        k4 = dynamics(xs + dt * k3, u)
+        k1 = f(xs)
+        k2 = f(xs + dt / 2 * k1)
+        k3 = f(xs + dt / 2 * k2)
+        k4 = f(xs + dt * k3)
         xs = xs + dt / 6 * (k1 + 2 * k2 + 2 * k3 + k4)
-    return ca.Function(name, [x, u, h], [xs], ["x", "u", "h"], ["x_next"])
+    names = ["x", "u", "h"] + (["theta"] if n_params else [])
+    return ca.Function(name, [x, u, h, *extra], [xs], names, ["x_next"])
+
+
+@functools.cache
+def _rk4_param_step(task: Task, space: ParameterSpace, substeps: int) -> ca.Function:
+    return rk4_map(space.dynamics, task.nx, task.nu, substeps, f"{task.name}_rk4_theta_{substeps}", space.size)
 
 
 @functools.cache

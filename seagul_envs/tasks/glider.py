@@ -22,6 +22,7 @@ import casadi as ca
 import numpy as np
 
 from seagul_envs.tasks.base import Task
+from seagul_envs.tasks.parameters import ParameterSpace, parametric_dynamics
 from seagul_envs.tasks.profile import (
     SMOKE_TRAIN_OVERRIDES,
     EvaluationGrid,
@@ -187,11 +188,8 @@ class GliderParams:
     """Upper corner of X0."""
 
 
-def make_glider_task(params: GliderParams | None = None) -> Task:
-    """Build the perching-glider :class:`Task` (see the module docstring for the choices)."""
-    p = params or GliderParams()
-    x = ca.SX.sym("x", 7)
-    u = ca.SX.sym("u", 1)
+def glider_xdot(x: ca.SX, u: ca.SX, p: GliderParams) -> ca.SX:
+    """``xdot = f(x, u)`` for the parameters ``p`` (numbers, or SX symbols for the parametric dynamics)."""
     _, _, th, phi, dx, dz, dth = (x[i] for i in range(7))
     dphi = u[0]
 
@@ -208,8 +206,37 @@ def make_glider_task(params: GliderParams | None = None) -> Task:
     ddx = -(f_wing * ca.sin(th) + f_elev * ca.sin(e)) / p.m
     ddz = (f_wing * ca.cos(th) + f_elev * ca.cos(e)) / p.m - p.g
     ddth = (f_wing * p.l_w - f_elev * (p.l_h * ca.cos(phi) + p.l_e)) / p.I
-    xdot = ca.vertcat(dx, dz, dth, dphi, ddx, ddz, ddth)
-    dynamics = ca.Function("glider_f", [x, u], [xdot], ["x", "u"], ["xdot"])
+    return ca.vertcat(dx, dz, dth, dphi, ddx, ddz, ddth)
+
+
+THETA_NAMES: tuple[str, ...] = ("m", "S_w", "S_e", "rho")
+"""The glider's parameters that may vary (docs/spec.md §14): mass, wing and elevator areas, air density. The
+geometry (lever arms) and the pitch inertia stay the model's."""
+THETA_UNITS: tuple[str, ...] = ("kg", "m^2", "m^2", "kg/m^3")
+THETA_SPREAD: tuple[float, ...] = (0.15, 0.1, 0.2, 0.1)
+"""``Theta`` is the task's value +- 15 % (mass: a payload), 10 % (wing area), 20 % (elevator area: its
+effectiveness) and 10 % (air density: altitude and temperature)."""
+
+
+def glider_parameter_space(p: GliderParams) -> ParameterSpace:
+    """``Theta`` around the parameters ``p`` (:data:`THETA_SPREAD`) and the dynamics ``f(x, u, theta)``."""
+    own = np.array([getattr(p, n) for n in THETA_NAMES], dtype=float)
+    spread = np.asarray(THETA_SPREAD)
+    return ParameterSpace(
+        names=THETA_NAMES,
+        low=own * (1 - spread),
+        high=own * (1 + spread),
+        units=THETA_UNITS,
+        dynamics=parametric_dynamics("glider", 7, 1, THETA_NAMES, p, glider_xdot),
+    )
+
+
+def make_glider_task(params: GliderParams | None = None) -> Task:
+    """Build the perching-glider :class:`Task` (see the module docstring for the choices)."""
+    p = params or GliderParams()
+    x = ca.SX.sym("x", 7)
+    u = ca.SX.sym("u", 1)
+    dynamics = ca.Function("glider_f", [x, u], [glider_xdot(x, u, p)], ["x", "u"], ["xdot"])
 
     goal = np.array([0.0, 0.0, np.pi / 4, 0.0, 0.0, 0.0, 0.0])
     stage_cost = ca.Function("glider_l", [x, u], [p.input_weight * u[0] ** 2], ["x", "u"], ["l"])
@@ -242,6 +269,7 @@ def make_glider_task(params: GliderParams | None = None) -> Task:
         rk4_substeps=p.rk4_substeps,
         control_period=p.control_period,
         params=p,
+        parameters=glider_parameter_space(p),
         extras={"Qf": Qf},
         profile=glider_profile(p, Qf),
     )

@@ -1,0 +1,167 @@
+"""Physical parameters as inputs: the box Theta, ``Task.with_params``, the parametric NLP and ``dV/dtheta``.
+
+The reference for every parametric quantity is the non-parametric path: the task rebuilt at ``theta``
+(``task.with_params``) and solved as any task is. ``grad_theta`` (from the multipliers of one parametric solver) is
+checked against central finite differences of those independently solved values.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from seagul_control.transcription import Transcription
+from seagul_envs.tasks import make_task, validate_task
+from seagul_envs.tasks.parameters import ParameterSpace
+from seagul_learn.trajopt import TrajectoryOptimizer
+
+QUIET = {"ipopt.print_level": 0, "print_time": False, "ipopt.tol": 1e-10}
+
+
+@pytest.mark.parametrize("name", ["acrobot", "glider"])
+def test_parametric_dynamics_equal_the_model_at_its_own_and_at_other_parameters(name):
+    task = make_task(name)
+    space = task.parameters
+    assert space is not None and space.size == len(space.names) == len(space.units)
+    assert np.all(space.low <= task.theta) and np.all(task.theta <= space.high)
+    rng = np.random.default_rng(1)
+    other = task.with_params(space.sample(rng))
+    validate_task(other)
+    for _ in range(5):
+        x = task.sample_x0(rng) + rng.normal(0, 0.3, task.nx)
+        u = rng.uniform(task.u_low, task.u_high)
+        np.testing.assert_allclose(
+            np.asarray(space.dynamics(x, u, task.theta)).ravel(), np.asarray(task.dynamics(x, u)).ravel(), rtol=1e-13
+        )
+        np.testing.assert_allclose(
+            np.asarray(space.dynamics(x, u, other.theta)).ravel(),
+            np.asarray(other.dynamics(x, u)).ravel(),
+            rtol=1e-13,
+            atol=1e-13,
+        )
+    # Another robot moves differently (the parameters matter) and is another task for every cache.
+    x = task.sample_x0(rng)
+    u = task.u_high * 0.5
+    assert not np.allclose(np.asarray(task.dynamics(x, u)), np.asarray(other.dynamics(x, u)))
+    assert other.fingerprint() != task.fingerprint()
+
+
+def test_with_params_records_the_values_keeps_the_objective_and_names_bad_input():
+    task = make_task("acrobot")
+    heavy = task.with_params({"m2": 1.15, "b1": 0.2})
+    assert heavy.params.m2 == 1.15 and heavy.params.b1 == 0.2 and heavy.params.m1 == task.params.m1
+    np.testing.assert_array_equal(heavy.theta, [1.0, 1.15, 1.0, 1.0, 0.2, 0.1])
+    assert heavy.terminal_cost is task.terminal_cost and heavy.stage_cost is task.stage_cost
+    assert heavy.profile is task.profile and heavy.parameters is task.parameters
+    np.testing.assert_array_equal(heavy.extras["Qf"], task.extras["Qf"])  # the objective is the nominal one
+    # The physics extras follow the robot (the MuJoCo comparison reads them).
+    q = np.array([0.3, -0.2])
+    m_heavy = np.asarray(heavy.extras["mass_matrix"](q))
+    assert not np.allclose(m_heavy, np.asarray(task.extras["mass_matrix"](q)))
+    np.testing.assert_array_equal(task.with_params(task.theta).theta, task.theta)
+    with pytest.raises(ValueError, match=r"unknown parameter\(s\) \['mass'\]"):
+        task.with_params({"mass": 1.0})
+    with pytest.raises(ValueError, match=r"shape \(6,\)"):
+        task.with_params([1.0, 2.0])
+    with pytest.raises(ValueError, match="NaN or inf"):
+        task.with_params([1.0, np.nan, 1.0, 1.0, 0.1, 0.1])
+    with pytest.raises(ValueError, match="must not be negative"):
+        task.with_params({"m1": -1.0})
+    with pytest.raises(ValueError, match="outside the box Theta: m1 = 2 kg not in"):
+        task.parameters.check([2.0, 1.0, 1.0, 1.0, 0.1, 0.1], "acrobot", inside=True)
+    fixed = dataclasses.replace(task, parameters=None)
+    with pytest.raises(ValueError, match=r"declares which parameters vary \(Task.parameters\)"):
+        fixed.with_params({"m1": 1.0})
+    with pytest.raises(ValueError, match="model_params=True needs a task"):
+        Transcription(fixed, model_params=True)
+
+
+def test_validate_task_rejects_parametric_dynamics_that_disagree_with_the_model():
+    import casadi as ca
+
+    task = make_task("acrobot")
+    space = task.parameters
+    assert isinstance(space, ParameterSpace)
+    x, u, th = ca.SX.sym("x", 4), ca.SX.sym("u", 1), ca.SX.sym("th", 6)
+    off = ca.Function("off", [x, u, th], [space.dynamics(x, u, th) * 1.01])
+    with pytest.raises(ValueError, match="must equal dynamics"):
+        validate_task(dataclasses.replace(task, parameters=dataclasses.replace(space, dynamics=off)))
+    renamed = dataclasses.replace(space, names=("m1", "m2", "l1", "lc2", "b1", "mass"))
+    with pytest.raises(ValueError, match="not fields of the task's params"):
+        validate_task(dataclasses.replace(task, parameters=renamed))
+    with pytest.raises(ValueError, match=r"must map \(x\[4\], u\[1\], theta\[6\]\)"):
+        validate_task(dataclasses.replace(task, parameters=dataclasses.replace(space, dynamics=task.dynamics)))
+
+
+def test_one_parametric_transcription_solves_every_robot_like_the_rebuilt_task():
+    task = make_task("acrobot")
+    x0 = np.array([np.pi - 0.25, 0.2, 0.3, -0.2])
+    parametric = Transcription(task, model_params=True, solver_options=QUIET)
+    assert parametric.num_parameters == task.nx + 1 + task.parameters.size
+    for theta in (task.parameters.low, task.parameters.high):
+        sol = parametric.solve(x0, task.tau_nominal, model_params=theta)
+        ref = Transcription(task.with_params(theta), solver_options=QUIET).solve(x0, task.tau_nominal)
+        assert sol.success and ref.success
+        assert sol.objective == pytest.approx(ref.objective, rel=1e-8)
+        np.testing.assert_allclose(sol.param_sensitivity[: task.nx + 1], ref.param_sensitivity, rtol=1e-5, atol=1e-6)
+    with pytest.raises(ValueError, match="model_params must have 6 entries"):
+        parametric.solve(x0, task.tau_nominal, model_params=[1.0])
+    with pytest.raises(ValueError, match="built without model_params=True"):
+        Transcription(task, solver_options=QUIET).solve(x0, task.tau_nominal, model_params=task.theta)
+
+
+def fd_grad_theta(task, x0, theta, rel_step=1e-4):
+    """Central differences of V over each parameter, every value solved on the rebuilt task (no parametric NLP)."""
+    grad = np.zeros(theta.size)
+    for i in range(theta.size):
+        step = rel_step * abs(theta[i])
+        values = []
+        for sign in (1.0, -1.0):
+            shifted = theta.copy()
+            shifted[i] += sign * step
+            res = TrajectoryOptimizer(task.with_params(shifted), codegen=False, tol=1e-10, multi_start="never").solve(
+                x0
+            )
+            assert res.success, res.status
+            values.append(res.value)
+        grad[i] = (values[0] - values[1]) / (2 * step)
+    return grad
+
+
+@pytest.mark.parametrize(
+    ("name", "x0", "draw"),
+    [
+        ("acrobot", [np.pi - 0.25, 0.2, 0.3, -0.2], 0.7),
+        ("glider", [-3.5, 0.15, 0.0, 0.0, 7.0, 0.0, 0.0], 0.3),
+    ],
+)
+def test_grad_theta_from_the_multipliers_matches_central_finite_differences(name, x0, draw):
+    task = make_task(name)
+    space = task.parameters
+    theta = space.low + draw * (space.high - space.low)  # a robot that is not the model
+    opt = TrajectoryOptimizer(task, codegen=False, tol=1e-10, multi_start="never", model_params=True)
+    res = opt.solve(x0, theta=theta)
+    assert res.success, res.status
+    np.testing.assert_array_equal(res.theta, theta)
+    assert res.grad_theta is not None and res.grad_theta.shape == (space.size,)
+    fd = fd_grad_theta(task, np.asarray(x0, dtype=float), theta)
+    scale = np.maximum(np.abs(fd), 1e-3 * np.max(np.abs(fd)))
+    assert np.max(np.abs(res.grad_theta - fd) / scale) < 1e-4, (res.grad_theta, fd)
+    # The same robot through the rebuilt task: the same value (the parametric NLP is that problem).
+    ref = TrajectoryOptimizer(task.with_params(theta), codegen=False, tol=1e-10, multi_start="never").solve(x0)
+    assert res.value == pytest.approx(ref.value, rel=1e-7)
+
+
+def test_theta_needs_model_params_and_a_well_formed_vector():
+    task = make_task("acrobot")
+    plain = TrajectoryOptimizer(task, codegen=False)
+    assert plain.solve(task.goal).grad_theta is None
+    with pytest.raises(ValueError, match="model_params=True"):
+        plain.solve(task.goal, theta=task.theta)
+    parametric = TrajectoryOptimizer(task, codegen=False, model_params=True)
+    with pytest.raises(ValueError, match="unknown parameter"):
+        parametric.solve(task.goal, theta={"mass": 2.0})
+    res = parametric.solve(task.goal, theta={"m2": 1.1})  # a partial mapping keeps the task's other values
+    np.testing.assert_array_equal(res.theta, task.with_params({"m2": 1.1}).theta)
