@@ -617,6 +617,11 @@ class LimitedLookaheadMPC(_MPCBase):
         terminal = self._terminal_function(n_vf)
         n_theta = int(terminal.nnz_in(2))
         self._theta = np.zeros(n_theta)
+        # The final phase ends at the episode's end: its terminal cost is l_f (the learned term's switch s is 0 there).
+        # Its own SX function, with the same parameter vector, keeps the network's graph out of its NLP: evaluated
+        # at s = 0 it still cost the network's Hessian at every iteration.
+        xs, ts, ths = ca.SX.sym("x", task.nx), ca.SX.sym("tau_rem"), ca.SX.sym("theta", n_theta)
+        self._final_terminal = ca.Function("mpc_final_terminal", [xs, ts, ths], [task.terminal_cost(xs)])
         if value_function is not None:
             self.set_value_function(value_function, trust_box=trust_box)
 
@@ -662,7 +667,7 @@ class LimitedLookaheadMPC(_MPCBase):
                     final_box=self.final_box,
                     solver=self.final_solver,
                     soft_bounds_weight=self.final_soft_weight,
-                    **common,
+                    **{**common, "terminal_cost": self._final_terminal},
                 )
 
     # ------------------------------------------------------------------ value function
@@ -834,10 +839,10 @@ class LimitedLookaheadMPC(_MPCBase):
                 free_time=False,
                 step=self.dt,
                 final_box=self.final_box,
-                terminal_cost=self._lookahead.trans.terminal_cost,
+                terminal_cost=self._final_terminal,
                 n_theta=self._theta.size,
                 substeps=self.substeps,
-                jit=False,
+                jit=True,
                 solver=self.final_solver,
                 soft_bounds_weight=self.final_soft_weight,
             )

@@ -533,3 +533,27 @@ def test_glider_soft_final_phase_returns_a_plan_where_the_exact_perch_is_out_of_
     assert info.phase == "final" and info.success, info.status
     free_hard = LimitedLookaheadMPC(task, None, 10, jit=False, steps="free", final_soft_weight=0)
     assert free_hard._final is not None and free_hard._final.trans.soft_bounds_weight is None
+
+
+def test_the_final_phase_plans_with_l_f_only_and_leaves_the_network_out_of_its_nlp() -> None:
+    """At the episode's end the learned term is switched off (s = 0); the final-phase problems are built with the
+    plain ``l_f`` terminal cost, so their NLP (and its compiled code) carries no network: the same action as an MPC
+    without a network, and no dependence on the network's weights."""
+    import casadi as ca
+
+    pytest.importorskip("torch")
+    from seagul_learn.value_network import ValueNetwork
+
+    task = make_task("glider")
+    x = np.array([-0.38, 0.08, 1.46, -0.7, 2.48, 0.16, 1.61])
+    net = ValueNetwork(7, (8,), task_name="glider", seed=0)
+    learned = LimitedLookaheadMPC(task, net, 10, jit=False)
+    plain = LimitedLookaheadMPC(task, None, 10, jit=False)
+    u_learned, info = learned.act(x, 0.2)
+    u_plain, _ = plain.act(x, 0.2)
+    assert info.phase == "final" and info.success
+    np.testing.assert_allclose(u_learned, u_plain, atol=1e-6)
+    fn = learned._final_fixed[8].trans.terminal_cost
+    xs, ts, th = ca.SX.sym("x", 7), ca.SX.sym("t"), ca.SX.sym("th", learned._theta.size)
+    assert not ca.depends_on(fn(xs, ts, th), th)
+    assert float(fn(x, 0.0, np.ones(learned._theta.size))) == pytest.approx(task.terminal_cost_value(x))
