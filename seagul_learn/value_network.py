@@ -5,6 +5,11 @@ The network maps ``z = ([x, tau] - in_mean) / in_std`` through ``tanh`` hidden l
 :meth:`ValueNetwork.set_normalization`), so a saved file is self-contained. Everything is float64: the MPC and the
 gradient checks need it.
 
+A network over robots, ``Vhat(x, tau, theta)`` (``n_params > 0``: the task's varying physical parameters, docs/spec.md
+§14), takes ``[x, tau, theta]``. Where ``theta`` is not given it uses its *condition* (:meth:`ValueNetwork.condition`,
+default the values it was built for): the robot an MPC plans for. The condition is the last entry block of the
+CasADi parameters, so an MPC built once re-plans for another robot (an estimate) with ``set_value_function`` alone.
+
 For NLPs the same network is available as a CasADi expression (:meth:`casadi_function`) whose parameters
 ``theta`` are the flattened normalisation and weights in a layout fixed by the architecture, so an MPC built once
 accepts any newly trained network of the same shape (it implements
@@ -51,9 +56,11 @@ class ValueNetworkConfig:
     """State dimension (the input is ``[x, tau]``, so ``nx + 1`` features)."""
     hidden: tuple[int, ...] = (32,)
     """Widths of the tanh hidden layers (paper: one layer of 32)."""
+    n_params: int = 0
+    """Physical parameters ``theta`` among the inputs (``[x, tau, theta]``); 0: ``Vhat(x, tau)``."""
 
 
-_Forward: TypeAlias = Callable[[torch.Tensor, torch.Tensor], torch.Tensor]
+_Forward: TypeAlias = Callable[..., torch.Tensor]
 CasadiForm: TypeAlias = Literal["scalar", "matrix"]
 """How a value function's CasADi graph is built: ``"scalar"`` (SX) or ``"matrix"`` (MX of dense products)."""
 
@@ -73,12 +80,34 @@ def _value_and_grad(forward: _Forward, x: Any, tau: Any) -> tuple[np.ndarray, np
     return (out[0][0], out[1][0], out[2][0]) if single else out
 
 
-def _predict(forward: _Forward, x: Any, tau: Any) -> np.ndarray:
-    """NumPy values of ``forward`` for a batch."""
+def _predict(forward: _Forward, x: Any, tau: Any, theta: Any = None) -> np.ndarray:
+    """NumPy values of ``forward`` for a batch (``theta``: None, one vector or one row per state)."""
     x_arr = np.atleast_2d(np.asarray(x, dtype=np.float64))
     tau_arr = np.broadcast_to(np.asarray(tau, dtype=np.float64).reshape(-1), (x_arr.shape[0],))
+    extra = () if theta is None else (torch.as_tensor(np.asarray(theta, dtype=np.float64)),)
     with torch.no_grad():
-        return forward(torch.tensor(x_arr), torch.tensor(np.array(tau_arr))).numpy()
+        return forward(torch.tensor(x_arr), torch.tensor(np.array(tau_arr)), *extra).numpy()
+
+
+def _value_and_grads(
+    forward: _Forward, x: Any, tau: Any, theta: Any
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(V, dV/dx, dV/dtau, dV/dtheta)`` of ``forward`` for a batch (or a single ``x``), as NumPy."""
+    x_arr = np.asarray(x, dtype=np.float64)
+    single = x_arr.ndim == 1
+    x_arr = np.atleast_2d(x_arr)
+    n = x_arr.shape[0]
+    tau_arr = np.broadcast_to(np.asarray(tau, dtype=np.float64).reshape(-1), (n,))
+    th_arr = np.asarray(theta, dtype=np.float64)
+    th_arr = np.broadcast_to(th_arr, (n, th_arr.shape[-1])) if th_arr.ndim <= 1 else th_arr
+    xt = torch.tensor(x_arr, dtype=DTYPE, requires_grad=True)
+    tt = torch.tensor(np.array(tau_arr), dtype=DTYPE, requires_grad=True)
+    pt = torch.tensor(np.array(th_arr), dtype=DTYPE, requires_grad=True)
+    with torch.enable_grad():
+        v = forward(xt, tt, pt)
+        gx, gt, gp = torch.autograd.grad(v.sum(), [xt, tt, pt])
+    out = (v.detach().numpy(), gx.numpy(), gt.numpy(), gp.numpy())
+    return (out[0][0], out[1][0], out[2][0], out[3][0]) if single else out
 
 
 class ValueNetwork(nn.Module):
@@ -89,27 +118,47 @@ class ValueNetwork(nn.Module):
     in_std: torch.Tensor
     out_mean: torch.Tensor
     out_std: torch.Tensor
+    theta_condition: torch.Tensor  # networks over robots only (n_params > 0)
 
-    def __init__(self, nx: int, hidden: Sequence[int] = (32,), task_name: str = "", seed: int | None = None) -> None:
-        """Build the network; ``seed`` makes the initial weights reproducible without touching global RNG state."""
+    def __init__(
+        self,
+        nx: int,
+        hidden: Sequence[int] = (32,),
+        task_name: str = "",
+        seed: int | None = None,
+        n_params: int = 0,
+        theta: Any = None,
+    ) -> None:
+        """Build the network; ``seed`` makes the initial weights reproducible without touching global RNG state.
+        ``n_params > 0`` adds the physical parameters to the inputs; ``theta`` is the initial condition (default
+        zeros; the trainer sets the task's values)."""
         super().__init__()
         if int(nx) < 1:
             raise ValueError(f"nx must be >= 1, got {nx}")
+        if int(n_params) < 0:
+            raise ValueError(f"n_params must be >= 0, got {n_params}")
         hidden = tuple(int(h) for h in hidden)
         if not hidden or any(h < 1 for h in hidden):
             raise ValueError(f"hidden widths must be a non-empty sequence of positive integers, got {hidden}")
-        self.config = ValueNetworkConfig(nx=int(nx), hidden=hidden)
+        self.config = ValueNetworkConfig(nx=int(nx), hidden=hidden, n_params=int(n_params))
         self.task_name = str(task_name)
-        widths = [self.config.nx + 1, *hidden, 1]
+        n_in = self.config.nx + 1 + self.config.n_params
+        widths = [n_in, *hidden, 1]
         with torch.random.fork_rng(devices=[]):
             if seed is not None:
                 torch.manual_seed(int(seed))
             self.layers = nn.ModuleList(nn.Linear(a, b, dtype=DTYPE) for a, b in itertools.pairwise(widths))
-        n_in = self.config.nx + 1
         self.register_buffer("in_mean", torch.zeros(n_in, dtype=DTYPE))
         self.register_buffer("in_std", torch.ones(n_in, dtype=DTYPE))
         self.register_buffer("out_mean", torch.zeros(1, dtype=DTYPE))
         self.register_buffer("out_std", torch.ones(1, dtype=DTYPE))
+        if self.config.n_params:
+            # Only networks over robots carry it, so files of plain networks keep their layout.
+            self.register_buffer("theta_condition", torch.zeros(self.config.n_params, dtype=DTYPE))
+            if theta is not None:
+                self.condition(theta)
+        elif theta is not None:
+            raise ValueError("theta given to a network without physical parameters (n_params=0)")
 
     # ------------------------------------------------------------------ torch
     @property
@@ -117,7 +166,30 @@ class ValueNetwork(nn.Module):
         """State dimension."""
         return self.config.nx
 
-    def _inputs(self, x: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+    @property
+    def n_params(self) -> int:
+        """Number of physical parameters among the inputs (0: ``Vhat(x, tau)``)."""
+        return self.config.n_params
+
+    @torch.no_grad()
+    def condition(self, theta: Any) -> None:
+        """Set the robot ``theta`` used wherever none is given (``forward`` without ``theta``, the CasADi
+        parameters an MPC plans with). Raises ValueError for a network without parameters or a malformed vector."""
+        if not self.n_params:
+            raise ValueError("condition() needs a network over physical parameters (n_params > 0)")
+        arr = np.asarray(theta, dtype=np.float64)
+        if arr.shape != (self.n_params,) or not np.all(np.isfinite(arr)):
+            raise ValueError(f"theta must be {self.n_params} finite numbers, got {np.asarray(theta).tolist()}")
+        self.theta_condition.copy_(torch.tensor(arr))
+
+    @property
+    def theta(self) -> np.ndarray:
+        """The condition (:meth:`condition`); empty without physical parameters."""
+        if not self.n_params:
+            return np.zeros(0)
+        return self.theta_condition.detach().numpy().copy()
+
+    def _inputs(self, x: torch.Tensor, tau: torch.Tensor, theta: torch.Tensor | None = None) -> torch.Tensor:
         x = torch.as_tensor(x, dtype=DTYPE)
         tau = torch.as_tensor(tau, dtype=DTYPE)
         if x.ndim != 2 or x.shape[1] != self.nx:
@@ -125,11 +197,24 @@ class ValueNetwork(nn.Module):
         tau = tau.reshape(-1)
         if tau.shape[0] != x.shape[0]:
             raise ValueError(f"tau must have one entry per row of x ({x.shape[0]}), got shape {tuple(tau.shape)}")
-        return torch.cat([x, tau[:, None]], dim=1)
+        if not self.n_params:
+            if theta is not None:
+                raise ValueError("theta given to a network without physical parameters (n_params=0)")
+            return torch.cat([x, tau[:, None]], dim=1)
+        th = self.theta_condition if theta is None else torch.as_tensor(theta, dtype=DTYPE)
+        if th.ndim == 1:
+            th = th[None, :].expand(x.shape[0], -1)
+        if th.shape != (x.shape[0], self.n_params):
+            raise ValueError(
+                f"theta must have shape ({self.n_params},) or ({x.shape[0]}, {self.n_params}), got {tuple(th.shape)}"
+            )
+        return torch.cat([x, tau[:, None], th], dim=1)
 
-    def forward_standardized(self, x: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+    def forward_standardized(
+        self, x: torch.Tensor, tau: torch.Tensor, theta: torch.Tensor | None = None
+    ) -> torch.Tensor:
         """The standardised output ``y = (Vhat - out_mean) / out_std``, shape ``(batch,)`` (the training target)."""
-        h = (self._inputs(x, tau) - self.in_mean) / self.in_std
+        h = (self._inputs(x, tau, theta) - self.in_mean) / self.in_std
         layers = self.linear_layers
         for layer in layers[:-1]:
             h = torch.tanh(layer(h))
@@ -140,24 +225,52 @@ class ValueNetwork(nn.Module):
         """The affine layers in order (``self.layers`` typed: ``nn.ModuleList`` yields plain modules)."""
         return cast("list[nn.Linear]", list(self.layers))
 
-    def forward(self, x: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
-        """``Vhat`` for a batch: ``x`` of shape ``(batch, nx)``, ``tau`` of shape ``(batch,)``; returns ``(batch,)``."""
-        return self.forward_standardized(x, tau) * self.out_std + self.out_mean
+    def forward(self, x: torch.Tensor, tau: torch.Tensor, theta: torch.Tensor | None = None) -> torch.Tensor:
+        """``Vhat`` for a batch: ``x`` of shape ``(batch, nx)``, ``tau`` of shape ``(batch,)``, ``theta`` (networks
+        over robots) ``(n_params,)`` or ``(batch, n_params)``, default the condition; returns ``(batch,)``."""
+        return self.forward_standardized(x, tau, theta) * self.out_std + self.out_mean
 
     def value_and_grad(self, x: Any, tau: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """NumPy helper: ``(Vhat, dVhat/dx, dVhat/dtau)`` for a batch (or a single ``x`` of shape ``(nx,)``)."""
+        """NumPy helper: ``(Vhat, dVhat/dx, dVhat/dtau)`` for a batch (or a single ``x`` of shape ``(nx,)``); a
+        network over robots at its condition."""
         return _value_and_grad(self.forward, x, tau)
 
-    def predict(self, x: Any, tau: Any) -> np.ndarray:
-        """NumPy values ``Vhat(x, tau)`` for a batch."""
-        return _predict(self.forward, x, tau)
+    def value_and_grads(
+        self, x: Any, tau: Any, theta: Any = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """NumPy helper: ``(Vhat, dVhat/dx, dVhat/dtau, dVhat/dtheta)`` at ``theta`` (default the condition)."""
+        if not self.n_params:
+            raise ValueError("value_and_grads needs a network over physical parameters (n_params > 0)")
+        return _value_and_grads(self.forward, x, tau, self.theta if theta is None else theta)
+
+    def predict(self, x: Any, tau: Any, theta: Any = None) -> np.ndarray:
+        """NumPy values ``Vhat(x, tau)`` (``Vhat(x, tau, theta)``) for a batch."""
+        return _predict(self.forward, x, tau, theta)
+
+    def _feature_rows(self, x: np.ndarray, tau: np.ndarray, theta: np.ndarray | None) -> np.ndarray:
+        rows = [np.asarray(x, dtype=np.float64), np.asarray(tau, dtype=np.float64).reshape(-1, 1)]
+        if self.n_params:
+            th = self.theta if theta is None else np.asarray(theta, dtype=np.float64)
+            rows.append(np.broadcast_to(th, (rows[0].shape[0], self.n_params)) if th.ndim == 1 else th)
+        elif theta is not None:
+            raise ValueError("theta given to a network without physical parameters (n_params=0)")
+        try:
+            return np.column_stack(rows)
+        except ValueError:
+            raise ValueError(
+                f"normalisation data must be x (n, {self.nx}), tau (n,), theta (n, {self.n_params}) with one row each"
+            ) from None
 
     @torch.no_grad()
-    def set_normalization(self, x: np.ndarray, tau: np.ndarray, value: np.ndarray) -> None:
-        """Set the input/output standardisation from data (constant features get std 1, not 0)."""
-        inputs = np.column_stack([np.asarray(x, dtype=np.float64), np.asarray(tau, dtype=np.float64).reshape(-1)])
+    def set_normalization(
+        self, x: np.ndarray, tau: np.ndarray, value: np.ndarray, theta: np.ndarray | None = None
+    ) -> None:
+        """Set the input/output standardisation from data (constant features get std 1, not 0); ``theta`` one row
+        per sample for a network over robots (default: its condition, a constant feature)."""
+        inputs = self._feature_rows(x, tau, theta)
         value = np.asarray(value, dtype=np.float64).reshape(-1)
-        if inputs.shape[1] != self.nx + 1 or inputs.shape[0] != value.shape[0] or value.size == 0:
+        n_in = self.nx + 1 + self.n_params
+        if inputs.shape[1] != n_in or inputs.shape[0] != value.shape[0] or value.size == 0:
             raise ValueError(f"normalisation data must be x (n, {self.nx}), tau (n,), value (n,) with n >= 1")
         if not (np.all(np.isfinite(inputs)) and np.all(np.isfinite(value))):
             raise ValueError("normalisation data contains NaN or inf")
@@ -169,7 +282,7 @@ class ValueNetwork(nn.Module):
         self.out_std.fill_(float(out_std) if out_std > _MIN_STD else 1.0)
 
     @torch.no_grad()
-    def renormalize(self, x: np.ndarray, tau: np.ndarray, value: np.ndarray) -> None:
+    def renormalize(self, x: np.ndarray, tau: np.ndarray, value: np.ndarray, theta: np.ndarray | None = None) -> None:
         """Move the standardisation to new data **without changing the function** ``Vhat`` (PopArt's "preserving
         outputs precisely", van Hasselt et al. 2016, applied to both ends).
 
@@ -182,7 +295,7 @@ class ValueNetwork(nn.Module):
         """
         old_in_mean, old_in_std = self.in_mean.clone(), self.in_std.clone()
         old_out_mean, old_out_std = self.out_mean.clone(), self.out_std.clone()
-        self.set_normalization(x, tau, value)
+        self.set_normalization(x, tau, value, theta)
         first, last = self.linear_layers[0], self.linear_layers[-1]
         first.bias.add_(first.weight @ ((self.in_mean - old_in_mean) / old_in_std))
         first.weight.mul_((self.in_std / old_in_std)[None, :])
@@ -191,19 +304,20 @@ class ValueNetwork(nn.Module):
 
     # ----------------------------------------------------------------- casadi
     def casadi_parameters(self) -> np.ndarray:
-        """``theta``: normalisation then each layer's weight (row-major) and bias, as one float64 vector."""
+        """``theta``: normalisation then each layer's weight (row-major) and bias, as one float64 vector (then the
+        condition, for a network over robots)."""
         parts = [self.in_mean, self.in_std]
         for layer in self.linear_layers:
             parts += [layer.weight.reshape(-1), layer.bias]
         parts += [self.out_mean, self.out_std]
+        if self.n_params:
+            parts.append(self.theta_condition)
         return torch.cat([p.detach().reshape(-1) for p in parts]).numpy().astype(np.float64)
 
     @property
     def num_casadi_parameters(self) -> int:
         """Length of ``theta``."""
-        n_in = self.nx + 1
-        widths = [n_in, *self.config.hidden, 1]
-        return 2 * n_in + sum(a * b + b for a, b in itertools.pairwise(widths)) + 2
+        return _num_parameters(self.nx, self.config.hidden, self.n_params)
 
     def casadi_function(self, form: CasadiForm = "scalar") -> ca.Function:
         """CasADi ``(x[nx], tau[1], theta[n]) -> V[1]``; depends only on the architecture, not on the weights.
@@ -212,7 +326,7 @@ class ValueNetwork(nn.Module):
         the same function as an MX graph of matrix-vector products, what compiled code wants: its exact Hessian is
         a few dozen dense products (the MPC's compiled lookahead, 46 kB of C for a 3 x (2 x 64) ensemble, where
         the scalar form's expansion was 30 MB that gcc did not finish in 21 CPU-minutes)."""
-        return _casadi_network(self.nx, self.config.hidden, _check_form(form))
+        return _casadi_network(self.nx, self.config.hidden, _check_form(form), self.n_params)
 
     def to_casadi(self) -> ca.Function:
         """CasADi ``(x[nx], tau[1]) -> V[1]`` with the current weights embedded as constants."""
@@ -224,7 +338,7 @@ class ValueNetwork(nn.Module):
     # -------------------------------------------------------------------- i/o
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the network to ``path`` atomically (temp file + rename); returns the path."""
-        config = {"nx": self.config.nx, "hidden": list(self.config.hidden)}
+        config = {"nx": self.config.nx, "hidden": list(self.config.hidden), "n_params": self.n_params}
         return _write_file(path, FORMAT_TAG, self.task_name, config, self)
 
     @classmethod
@@ -249,7 +363,12 @@ class ValueNetwork(nn.Module):
         _check_version(payload, path)
         try:
             config = payload["config"]
-            net = cls(nx=int(config["nx"]), hidden=tuple(config["hidden"]), task_name=str(payload["task_name"]))
+            net = cls(
+                nx=int(config["nx"]),
+                hidden=tuple(config["hidden"]),
+                task_name=str(payload["task_name"]),
+                n_params=int(config.get("n_params", 0)),  # files before networks over robots have none
+            )
             net.load_state_dict(payload["state_dict"])
         except Exception as exc:
             raise ValueNetworkFileError(
@@ -259,6 +378,13 @@ class ValueNetwork(nn.Module):
 
     def extra_repr(self) -> str:
         return f"task={self.task_name!r}, config={asdict(self.config)}"
+
+
+def _num_parameters(nx: int, hidden: tuple[int, ...], n_params: int) -> int:
+    """Length of a network's CasADi parameter vector (see :meth:`ValueNetwork.casadi_parameters`)."""
+    n_in = nx + 1 + n_params
+    widths = [n_in, *hidden, 1]
+    return 2 * n_in + sum(a * b + b for a, b in itertools.pairwise(widths)) + 2 + n_params
 
 
 class ValueEnsemble(nn.Module):
@@ -283,6 +409,8 @@ class ValueEnsemble(nn.Module):
         pessimism: float = 1.0,
         task_name: str = "",
         seed: int | None = None,
+        n_params: int = 0,
+        theta: Any = None,
     ) -> None:
         super().__init__()
         if int(members) < 2:
@@ -291,7 +419,14 @@ class ValueEnsemble(nn.Module):
             raise ValueError(f"pessimism must be a finite number >= 0, got {pessimism}")
         base = 0 if seed is None else int(seed)
         self.members = nn.ModuleList(
-            ValueNetwork(nx, hidden, task_name=task_name, seed=None if seed is None else 1000 * base + k)
+            ValueNetwork(
+                nx,
+                hidden,
+                task_name=task_name,
+                seed=None if seed is None else 1000 * base + k,
+                n_params=n_params,
+                theta=theta,
+            )
             for k in range(int(members))
         )
         self.pessimism = float(pessimism)
@@ -309,6 +444,21 @@ class ValueEnsemble(nn.Module):
         return self.config.nx
 
     @property
+    def n_params(self) -> int:
+        """Number of physical parameters among the inputs."""
+        return self.config.n_params
+
+    @property
+    def theta(self) -> np.ndarray:
+        """The members' condition (:meth:`ValueNetwork.condition`)."""
+        return self.networks[0].theta
+
+    def condition(self, theta: Any) -> None:
+        """Set every member's condition."""
+        for m in self.networks:
+            m.condition(theta)
+
+    @property
     def in_mean(self) -> torch.Tensor:
         """Input standardisation (shared by the members)."""
         return self.networks[0].in_mean
@@ -318,19 +468,21 @@ class ValueEnsemble(nn.Module):
         """Input standardisation scale (shared by the members)."""
         return self.networks[0].in_std
 
-    def set_normalization(self, x: np.ndarray, tau: np.ndarray, value: np.ndarray) -> None:
+    def set_normalization(
+        self, x: np.ndarray, tau: np.ndarray, value: np.ndarray, theta: np.ndarray | None = None
+    ) -> None:
         """The same standardisation for every member."""
         for m in self.networks:
-            m.set_normalization(x, tau, value)
+            m.set_normalization(x, tau, value, theta)
 
-    def renormalize(self, x: np.ndarray, tau: np.ndarray, value: np.ndarray) -> None:
+    def renormalize(self, x: np.ndarray, tau: np.ndarray, value: np.ndarray, theta: np.ndarray | None = None) -> None:
         """:meth:`ValueNetwork.renormalize` for every member (the function of each is unchanged)."""
         for m in self.networks:
-            m.renormalize(x, tau, value)
+            m.renormalize(x, tau, value, theta)
 
-    def forward(self, x: torch.Tensor, tau: torch.Tensor) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, tau: torch.Tensor, theta: torch.Tensor | None = None) -> torch.Tensor:
         """The ensemble mean."""
-        return torch.stack([m(x, tau) for m in self.members]).mean(dim=0)
+        return torch.stack([m(x, tau, theta) for m in self.members]).mean(dim=0)
 
     def spread(self, x: Any, tau: Any) -> np.ndarray:
         """Standard deviation over members at a batch (NumPy)."""
@@ -344,9 +496,17 @@ class ValueEnsemble(nn.Module):
         """NumPy helper: ``(mean, dmean/dx, dmean/dtau)``, as :meth:`ValueNetwork.value_and_grad`."""
         return _value_and_grad(self.forward, x, tau)
 
-    def predict(self, x: Any, tau: Any) -> np.ndarray:
+    def predict(self, x: Any, tau: Any, theta: Any = None) -> np.ndarray:
         """NumPy values of the ensemble mean for a batch."""
-        return _predict(self.forward, x, tau)
+        return _predict(self.forward, x, tau, theta)
+
+    def value_and_grads(
+        self, x: Any, tau: Any, theta: Any = None
+    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        """``(mean, dmean/dx, dmean/dtau, dmean/dtheta)``, as :meth:`ValueNetwork.value_and_grads`."""
+        if not self.n_params:
+            raise ValueError("value_and_grads needs a network over physical parameters (n_params > 0)")
+        return _value_and_grads(self.forward, x, tau, self.theta if theta is None else theta)
 
     # ----------------------------------------------------------------- casadi
     def casadi_parameters(self) -> np.ndarray:
@@ -357,9 +517,9 @@ class ValueEnsemble(nn.Module):
         """CasADi ``(x, tau, theta) -> mean + pessimism * spread``; depends only on the architecture and ``K``.
         ``form`` as for :meth:`ValueNetwork.casadi_function` (``"matrix"``: MX, for compiled code)."""
         form = _check_form(form)
-        key = (self.nx, self.config.hidden, len(self.members), form)
+        key = (self.nx, self.config.hidden, len(self.members), form, self.n_params)
         if key not in _ENSEMBLE_CACHE:
-            one = _casadi_network(self.nx, self.config.hidden, form)
+            one = _casadi_network(self.nx, self.config.hidden, form, self.n_params)
             n = int(one.nnz_in(2))
             k = len(self.members)
             sym: Any = ca.MX if form == "matrix" else ca.SX
@@ -384,6 +544,7 @@ class ValueEnsemble(nn.Module):
             "hidden": list(self.config.hidden),
             "members": len(self.members),
             "pessimism": self.pessimism,
+            "n_params": self.n_params,
         }
         return _write_file(path, ENSEMBLE_FORMAT_TAG, self.task_name, config, self)
 
@@ -398,6 +559,7 @@ class ValueEnsemble(nn.Module):
                 int(c["members"]),
                 float(c["pessimism"]),
                 task_name=str(payload["task_name"]),
+                n_params=int(c.get("n_params", 0)),
             )
             ens.load_state_dict(payload["state_dict"])
         except Exception as exc:
@@ -440,8 +602,8 @@ def _check_version(payload: dict[str, Any], path: Path) -> None:
         )
 
 
-_ENSEMBLE_CACHE: dict[tuple[int, tuple[int, ...], int, str], ca.Function] = {}
-_CASADI_CACHE: dict[tuple[int, tuple[int, ...], str], ca.Function] = {}
+_ENSEMBLE_CACHE: dict[tuple[int, tuple[int, ...], int, str, int], ca.Function] = {}
+_CASADI_CACHE: dict[tuple[int, tuple[int, ...], str, int], ca.Function] = {}
 
 
 def _check_form(form: Any) -> CasadiForm:
@@ -450,15 +612,15 @@ def _check_form(form: Any) -> CasadiForm:
     return cast(CasadiForm, form)
 
 
-def _casadi_network(nx: int, hidden: tuple[int, ...], form: CasadiForm = "scalar") -> ca.Function:
+def _casadi_network(nx: int, hidden: tuple[int, ...], form: CasadiForm = "scalar", n_params: int = 0) -> ca.Function:
     """Build (once per architecture and form) the symbolic network with ``theta`` laid out as in
     ``casadi_parameters``."""
-    key = (nx, hidden, form)
+    key = (nx, hidden, form, n_params)
     if key in _CASADI_CACHE:
         return _CASADI_CACHE[key]
-    n_in = nx + 1
+    n_in = nx + 1 + n_params
     widths = [n_in, *hidden, 1]
-    n_theta = 2 * n_in + sum(a * b + b for a, b in itertools.pairwise(widths)) + 2
+    n_theta = _num_parameters(nx, hidden, n_params)
     sym: Any = ca.MX if form == "matrix" else ca.SX
     x = sym.sym("x", nx)
     tau = sym.sym("tau", 1)
@@ -472,7 +634,8 @@ def _casadi_network(nx: int, hidden: tuple[int, ...], form: CasadiForm = "scalar
         return out
 
     in_mean, in_std = take(n_in), take(n_in)
-    h = (ca.vertcat(x, tau) - in_mean) / in_std
+    condition = theta[n_theta - n_params :]  # the robot (empty for a plain network), after the output statistics
+    h = (ca.vertcat(x, tau, condition) - in_mean) / in_std
     for i, (a, b) in enumerate(itertools.pairwise(widths)):
         # torch stores W as (out, in) row-major; CasADi reshapes column-major, hence the transpose.
         weight = ca.reshape(take(a * b), a, b).T

@@ -154,3 +154,100 @@ def test_normalisation_handles_constant_features():
     net.set_normalization(np.array([[1.0, 2.0], [3.0, 2.0]]), np.array([5.0, 5.0]), np.array([1.0, 3.0]))
     assert net.in_std.tolist() == [1.0, 1.0, 1.0]
     assert net.out_mean.item() == 2.0 and net.out_std.item() == 1.0
+
+
+# ------------------------------------------------------------------------------- networks over robots (theta)
+def _robot_net(seed: int = 0):
+    from seagul_envs.tasks import make_task
+    from seagul_learn.value_network import ValueNetwork
+
+    task = make_task("acrobot")
+    net = ValueNetwork(4, (16, 8), task_name="acrobot", seed=seed, n_params=6, theta=task.theta)
+    rng = np.random.default_rng(seed)
+    x, tau = task.sample_x0(rng, 64), rng.uniform(0.5, 5.0, 64)
+    theta = task.parameters.sample(rng, 64)
+    net.set_normalization(x, tau, rng.normal(20, 5, 64), theta)
+    return task, net, rng
+
+
+def test_network_over_robots_gradients_casadi_form_and_condition():
+    import casadi as ca
+    import torch
+
+    task, net, rng = _robot_net()
+    x, tau = task.sample_x0(rng, 5), rng.uniform(0.5, 5.0, 5)
+    theta = task.parameters.sample(rng, 5)
+    v, gx, gt, gp = net.value_and_grads(x, tau, theta)
+    assert v.shape == (5,) and gx.shape == (5, 4) and gt.shape == (5,) and gp.shape == (5, 6)
+    # Central differences in every parameter.
+    for j in range(6):
+        e = np.zeros(6)
+        e[j] = 1e-6
+        fd = (net.predict(x, tau, theta + e) - net.predict(x, tau, theta - e)) / 2e-6
+        np.testing.assert_allclose(gp[:, j], fd, rtol=1e-6, atol=1e-8)
+    # Without theta the network is at its condition (the task's robot) ...
+    np.testing.assert_allclose(net.predict(x, tau), net.predict(x, tau, task.theta), rtol=1e-14)
+    np.testing.assert_array_equal(net.theta, task.theta)
+    # ... and so is its CasADi form, whose last parameters are the condition: re-conditioning re-plans.
+    for form in ("scalar", "matrix"):
+        fn = net.casadi_function(form)
+        assert fn.nnz_in(2) == net.num_casadi_parameters == net.casadi_parameters().size
+        got = np.array([float(fn(x[i], tau[i], net.casadi_parameters())) for i in range(5)])
+        np.testing.assert_allclose(got, net.predict(x, tau), rtol=1e-12)
+    net.condition(theta[0])
+    fn = net.casadi_function()
+    np.testing.assert_allclose(float(fn(x[0], tau[0], net.casadi_parameters())), net.predict(x[:1], tau[:1], theta[0]))
+    # The state gradient of the CasADi form equals torch's at the condition.
+    xs = ca.SX.sym("x", 4)
+    jac = ca.Function("j", [xs], [ca.jacobian(fn(xs, tau[0], net.casadi_parameters()), xs)])
+    np.testing.assert_allclose(np.asarray(jac(x[0])).ravel(), net.value_and_grads(x[0], tau[0])[1], rtol=1e-9)
+    assert isinstance(net(torch.tensor(x), torch.tensor(tau)), torch.Tensor)
+
+
+def test_network_over_robots_renormalizes_saves_and_names_bad_input(tmp_path):
+    from seagul_learn.value_network import ValueEnsemble, ValueNetwork
+
+    task, net, rng = _robot_net(1)
+    x, tau = task.sample_x0(rng, 8), rng.uniform(0.5, 5.0, 8)
+    theta = task.parameters.sample(rng, 8)
+    before = net.predict(x, tau, theta)
+    net.renormalize(x * 3, tau, rng.normal(500, 50, 8), theta * 1.1)
+    np.testing.assert_allclose(net.predict(x, tau, theta), before, rtol=1e-10)
+    loaded = ValueNetwork.load(net.save(tmp_path / "robot.pt"))
+    assert loaded.n_params == 6
+    np.testing.assert_array_equal(loaded.theta, net.theta)
+    np.testing.assert_allclose(loaded.predict(x, tau, theta), before, rtol=1e-12)
+    plain = ValueNetwork(4, (8,), task_name="acrobot", seed=0)
+    assert plain.n_params == 0 and plain.theta.size == 0
+    assert ValueNetwork.load(plain.save(tmp_path / "plain.pt")).n_params == 0
+    with pytest.raises(ValueError, match="without physical parameters"):
+        plain.predict(x, tau, theta)
+    with pytest.raises(ValueError, match="needs a network over physical parameters"):
+        plain.condition(task.theta)
+    with pytest.raises(ValueError, match=r"theta must have shape \(6,\) or \(8, 6\)"):
+        net.predict(x, tau, theta[:, :3])
+    with pytest.raises(ValueError, match="theta must be 6 finite numbers"):
+        net.condition([1.0, np.nan, 1, 1, 1, 1])
+    ens = ValueEnsemble(4, (8,), members=2, pessimism=0.0, task_name="acrobot", seed=0, n_params=6, theta=task.theta)
+    ens.set_normalization(x, tau, rng.normal(20, 5, 8), theta)
+    fn = ens.casadi_function()  # pessimism 0: the CasADi form is the members' mean at their condition
+    np.testing.assert_allclose(
+        float(fn(x[0], tau[0], ens.casadi_parameters())), ens.predict(x[:1], tau[:1]), rtol=1e-12
+    )
+    ens.condition(theta[0])
+    assert np.allclose(ens.theta, theta[0])
+    again = ValueNetwork.load(ens.save(tmp_path / "ens.pt"))
+    assert again.n_params == 6
+    np.testing.assert_allclose(again.predict(x, tau, theta), ens.predict(x, tau, theta), rtol=1e-12)
+
+
+def test_the_mpc_plans_with_a_network_over_robots_at_its_condition():
+    from seagul_control import LimitedLookaheadMPC
+
+    task, net, _ = _robot_net(2)
+    mpc = LimitedLookaheadMPC(task, net, 5, jit=False)
+    u, info = mpc.act(np.array([np.pi - 0.2, 0.1, 0.0, 0.0]), 5.0)
+    assert info.success and np.all(np.abs(u) <= task.u_high)
+    net.condition(task.parameters.high)
+    mpc.set_value_function(net)  # another robot: parameters only, no rebuild
+    np.testing.assert_array_equal(mpc._vf_theta[-6:], task.parameters.high)
