@@ -54,6 +54,9 @@ class SolveResult:
     grad_theta: np.ndarray | None = None
     """``dV/dtheta`` from the multipliers (minus CasADi's ``lam_p`` of the parameters; verified against central
     finite differences of re-solved values in ``tests/test_parameters.py``); None without ``model_params``."""
+    knot_grad_theta: np.ndarray | None = None
+    """``dV_k/dtheta`` per knot, shape ``(m + 1, k)``: ``sum_{j >= k} (dV_{j+1}/dx_{j+1})' dF_j/dtheta`` (the tail's
+    envelope theorem; row 0 equals ``grad_theta``, row ``m`` is 0); None without ``model_params``."""
 
     @property
     def num_knots(self) -> int:

@@ -227,6 +227,7 @@ class TrajectoryOptimizer:
             )
         self.horizon = self.task.num_steps if cfg.horizon is None else int(cfg.horizon)
         self._transcriptions: dict[str, Transcription] = {}
+        self._theta_jacobians: dict[tuple[int, int], ca.Function] = {}
         self.counters = _Counters()
         # Build the first solver now (fail early on bad options); fallbacks are built on first use.
         self._transcription(self._plan()[0][0])
@@ -424,6 +425,17 @@ class TrajectoryOptimizer:
         knot_grads = np.vstack([grad_x[None, :], np.asarray(sol.defect_multipliers, dtype=float)])
         # p = [x_init, tau, model_params] (no terminal-cost parameters here): dV/dtheta is the tail of the sensitivity.
         grad_theta = None if theta is None else np.asarray(sol.param_sensitivity[nx + 1 :], dtype=float)
+        knot_grad_theta = None
+        if theta is not None:
+            # Per knot, by the envelope theorem on each tail: dV_k/dtheta = sum_{j >= k} lambda_{j+1}' dF_j/dtheta with
+            # lambda_{j+1} = dV_{j+1}/dx_{j+1} (the defect multipliers); row 0 equals grad_theta (tested).
+            jac = self._theta_jacobian(transcription)
+            # The map stacks the (nx, k) blocks side by side, interval after interval: [r, i, j] = dF_j,r/dtheta_i.
+            blocks = np.asarray(jac(sol.states[:-1].T, sol.controls.T, steps[None, :], theta)).reshape(
+                nx, theta.size, transcription.horizon, order="F"
+            )
+            per_interval = np.einsum("jr,rij->ji", knot_grads[1:], blocks)
+            knot_grad_theta = np.vstack([np.cumsum(per_interval[::-1], axis=0)[::-1], np.zeros((1, theta.size))])
         return SolveResult(
             x_init=x.copy(),
             tau=tau,
@@ -443,7 +455,22 @@ class TrajectoryOptimizer:
             attempts=labels,
             theta=None if theta is None else np.array(theta, dtype=float),
             grad_theta=grad_theta,
+            knot_grad_theta=knot_grad_theta,
         )
+
+    def _theta_jacobian(self, transcription: Transcription) -> ca.Function:
+        """``dF/dtheta`` of the transcription's RK4 map, mapped over its intervals (built once per horizon)."""
+        key = (transcription.horizon, transcription.substeps)
+        fn = self._theta_jacobians.get(key)
+        if fn is None:
+            task = self.task
+            step = task.rk4_step_params(transcription.substeps)
+            x, u, h = ca.SX.sym("x", task.nx), ca.SX.sym("u", task.nu), ca.SX.sym("h")
+            th = ca.SX.sym("theta", step.nnz_in(3))
+            one = ca.Function("dF_dtheta", [x, u, h, th], [ca.jacobian(step(x, u, h, th), th)])
+            fn = one.map(transcription.horizon, [False, False, False, True], [False], {})
+            self._theta_jacobians[key] = fn
+        return fn
 
 
 @functools.cache

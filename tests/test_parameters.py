@@ -165,3 +165,36 @@ def test_theta_needs_model_params_and_a_well_formed_vector():
         parametric.solve(task.goal, theta={"mass": 2.0})
     res = parametric.solve(task.goal, theta={"m2": 1.1})  # a partial mapping keeps the task's other values
     np.testing.assert_array_equal(res.theta, task.with_params({"m2": 1.1}).theta)
+
+
+@pytest.mark.parametrize("name", ["acrobot", "glider"])
+def test_per_knot_grad_theta_sums_the_tail_and_matches_finite_differences_of_a_tail_solve(name):
+    """``knot_grad_theta[k] = sum_{j >= k} lambda_{j+1}' dF_j/dtheta``: row 0 is ``grad_theta`` (from ``lam_p``, an
+    independent route), row m is 0, and (acrobot, fixed steps) a mid knot's row equals central differences of the
+    tail problem solved from that knot on the rebuilt task."""
+    task = make_task(name)
+    space = task.parameters
+    theta = space.low + 0.7 * (space.high - space.low)
+    x0 = [np.pi - 0.25, 0.2, 0.3, -0.2] if name == "acrobot" else [-3.5, 0.15, 0.0, 0.0, 7.0, 0.0, 0.0]
+    res = TrajectoryOptimizer(task, codegen=False, tol=1e-10, multi_start="never", model_params=True).solve(
+        x0, theta=theta
+    )
+    assert res.success and res.knot_grad_theta.shape == (res.num_knots, space.size)
+    np.testing.assert_allclose(res.knot_grad_theta[0], res.grad_theta, rtol=1e-9, atol=1e-12)
+    np.testing.assert_array_equal(res.knot_grad_theta[-1], 0.0)
+    if name != "acrobot":
+        return
+    k = 20
+    fd = np.zeros(space.size)
+    for i in range(space.size):
+        step = 1e-4 * theta[i]
+        values = []
+        for sign in (1.0, -1.0):
+            shifted = theta.copy()
+            shifted[i] += sign * step
+            tail = TrajectoryOptimizer(
+                task.with_params(shifted), codegen=False, tol=1e-10, multi_start="never", horizon=task.num_steps - k
+            )
+            values.append(tail.solve(res.states[k], res.time_to_go[k]).value)
+        fd[i] = (values[0] - values[1]) / (2 * step)
+    np.testing.assert_allclose(res.knot_grad_theta[k], fd, rtol=1e-4, atol=1e-7)
