@@ -330,6 +330,19 @@ def paired_test(a: list[float], b: list[float]) -> dict[str, float]:
     return {"median_difference": float(np.median(d)), "wins": int(np.sum(d > 0)), "losses": int(np.sum(d < 0)), "p": p}
 
 
+def _median(rows: list[dict[str, Any]], key: str, sub: str | None = None) -> float:
+    """Median of ``row[key]`` (``row[key][sub]``) over the rows that have it (NaN where none does: e.g. a grid-only
+    evaluation has no held-out rate or query error, an aggregated one no training records)."""
+    values = []
+    for row in rows:
+        value = row.get(key)
+        if sub is not None:
+            value = value.get(sub) if isinstance(value, dict) else None
+        if value is not None and np.isfinite(float(value)):
+            values.append(float(value))
+    return float(np.median(values)) if values else float("nan")
+
+
 def summarize(bench: BenchConfig, table: dict[str, dict[int, list[dict[str, Any]]]], full: dict[str, Any]) -> dict:
     """Per method and budget: medians, bands and per-seed lists; paired tests against the shipped method."""
     out: dict[str, Any] = {}
@@ -341,20 +354,21 @@ def summarize(bench: BenchConfig, table: dict[str, dict[int, list[dict[str, Any]
             seeds = by_budget[budget]
             succ = [s["success_rate"] for s in seeds]
             rows[str(budget)] = {
+                "seeds": [s.get("seed") for s in seeds],
                 "success_median": float(np.median(succ)),
                 "success_q25": float(np.percentile(succ, 25)),
                 "success_q75": float(np.percentile(succ, 75)),
                 "success_per_seed": succ,
-                "heldout_median": float(np.median([s["heldout_success_rate"] for s in seeds])),
-                "heldout_per_seed": [s["heldout_success_rate"] for s in seeds],
-                "mse_initial_median": float(np.median([s["mse_initial"] for s in seeds])),
-                "mse_all_knots_median": float(np.median([s["mse_all_knots"] for s in seeds])),
-                "solve_time_s_median": float(np.median([s["solve_time_s"] for s in seeds])),
-                "failures_median": float(np.median([s["failures"] for s in seeds])),
-                "query_error_median": float(np.nanmedian([s["query_error"]["median"] for s in seeds])),
-                "query_error_p95": float(np.nanmedian([s["query_error"]["p95"] for s in seeds])),
-                "query_error_mean_signed": float(np.nanmedian([s["query_error"]["mean_signed"] for s in seeds])),
-                "fallback_steps_median": float(np.median([s["fallback_steps"] for s in seeds])),
+                "heldout_median": _median(seeds, "heldout_success_rate"),
+                "heldout_per_seed": [s.get("heldout_success_rate", float("nan")) for s in seeds],
+                "mse_initial_median": _median(seeds, "mse_initial"),
+                "mse_all_knots_median": _median(seeds, "mse_all_knots"),
+                "solve_time_s_median": _median(seeds, "solve_time_s"),
+                "failures_median": _median(seeds, "failures"),
+                "query_error_median": _median(seeds, "query_error", "median"),
+                "query_error_p95": _median(seeds, "query_error", "p95"),
+                "query_error_mean_signed": _median(seeds, "query_error", "mean_signed"),
+                "fallback_steps_median": _median(seeds, "fallback_steps"),
             }
             if method != SHIPPED and SHIPPED in table and budget in table[SHIPPED]:
                 shipped = [s["success_rate"] for s in table[SHIPPED][budget]]
@@ -470,7 +484,7 @@ def shipped_block(
         "seed_list": [s["seed"] for s in shipped],
         "success_rate": float(np.median([s["success_rate"] for s in shipped])),
         "full_horizon_success_rate": full["success_rate"],
-        "heldout_success_rate": float(np.median([s["heldout_success_rate"] for s in shipped])),
+        "heldout_success_rate": _median(shipped, "heldout_success_rate"),
         "full_horizon_heldout_success_rate": full["heldout_success_rate"],
         "network": net_rel,
         "horizon": bench.horizon,
@@ -481,8 +495,8 @@ def shipped_block(
         "p95_ms": timing["p95_ms"],
         "timed_steps": timing["steps"],
         "timed_success_rate": timing["success_rate"],
-        "query_error_median": float(np.nanmedian([s["query_error"]["median"] for s in shipped])),
-        "query_error_p95": float(np.nanmedian([s["query_error"]["p95"] for s in shipped])),
+        "query_error_median": _median(shipped, "query_error", "median"),
+        "query_error_p95": _median(shipped, "query_error", "p95"),
         "grid": f"{bench.grid}x{bench.grid}",
         "heldout_starts": bench.heldout,
         # The task's own name of the success rate (the glider's "perch_success_rate"), as the contract spells it.
@@ -500,48 +514,42 @@ def _task_success_fields(bench: BenchConfig, shipped: list[dict[str, Any]], full
     }
 
 
-def aggregate_task(bench: BenchConfig, eval_dir: Path, network: Path, budget: int) -> dict[str, Any]:
-    """The JSON block of :func:`run_task` rebuilt from stored per-seed evaluations (``seed<N>.json`` and
-    ``full-horizon.json`` in ``eval_dir``, as committed under ``benchmarks/results/``) without the training runs: the
-    shipped ``network`` is timed again in this process. Fields that need the training records (validation MSEs,
-    solve times) are absent."""
+def aggregate_task(
+    bench: BenchConfig, eval_dir: Path, network: Path, budget: int, figure: Path | None = None
+) -> dict[str, Any]:
+    """The JSON block of :func:`run_task` rebuilt from stored per-seed evaluations without the training runs: for one
+    budget ``eval_dir/seed<N>.json``, for several (``bench.budgets``) ``eval_dir/b<B>/seed<N>.json`` (a budget may
+    lack some seeds: each row lists its own), and ``eval_dir/full-horizon.json``. The contract's fields are those
+    of ``budget`` (the shipped one); the shipped ``network`` is timed again in this process. Rows may carry the
+    training records' fields (validation MSEs, solve time) and may be grid-only (no held-out rate or query error:
+    NaN). ``figure``: also draw ``success_vs_solves`` there."""
     seeds = list(bench.seed_list or range(bench.seeds))
-    rows = []
-    for seed in seeds:
-        path = eval_dir / f"seed{seed}.json"
-        if not path.is_file():
-            raise FileNotFoundError(f"--aggregate: no evaluation {path}")
-        rows.append({**json.loads(path.read_text()), "seed": seed})
+    budgets = sorted(bench.budgets)
+    table: dict[int, list[dict[str, Any]]] = {}
+    for b in budgets:
+        folder = eval_dir if len(budgets) == 1 else eval_dir / f"b{b}"
+        rows = [
+            {**json.loads((folder / f"seed{seed}.json").read_text()), "seed": seed}
+            for seed in seeds
+            if (folder / f"seed{seed}.json").is_file()
+        ]
+        if not rows:
+            raise FileNotFoundError(f"--aggregate: no evaluation seed<N>.json for budget {b} in {folder}")
+        table[b] = rows
+    if budget not in table:
+        raise ValueError(f"--aggregate: the shipped budget {budget} is not among the budgets {budgets}")
     full = json.loads((eval_dir / "full-horizon.json").read_text())
     task = make_task(bench.task)
     grid_starts, _ = start_grid(task, bench.grid)
     timing = timed_steps(bench, network, grid_starts)
-    block = shipped_block(bench, rows, full, network, timing, budget)
-    succ = [r["success_rate"] for r in rows]
+    block = shipped_block(bench, table[budget], full, network, timing, budget)
+    summary = summarize(bench, {SHIPPED: table}, full)
+    if figure is not None:
+        plot(summary, full, figure, f"{bench.task}: {bench.horizon}-step MPC, {len(seeds)} seeds (aggregated)")
     return {
         **block,
-        "budgets": [budget],
-        "methods": {
-            SHIPPED: {
-                "budgets": {
-                    str(budget): {
-                        "success_median": block["success_rate"],
-                        "success_q25": float(np.percentile(succ, 25)),
-                        "success_q75": float(np.percentile(succ, 75)),
-                        "success_per_seed": succ,
-                        "heldout_median": block["heldout_success_rate"],
-                        "heldout_per_seed": [r["heldout_success_rate"] for r in rows],
-                        "query_error_median": block["query_error_median"],
-                        "query_error_p95": block["query_error_p95"],
-                        "fallback_steps_median": float(np.median([r["fallback_steps"] for r in rows])),
-                        "evaluated_median_ms": float(np.median([r["median_ms"] for r in rows])),
-                    }
-                },
-                "smallest_budget_98pct_of_full_horizon": (
-                    budget if block["success_rate"] >= 0.98 * full["success_rate"] else None
-                ),
-            }
-        },
+        "budgets": budgets,
+        "methods": summary,
         "aggregated_from": str(eval_dir),
         "train_settings": _settings(method_config(bench, SHIPPED)),
     }
@@ -569,6 +577,13 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--network", default=None, help="--aggregate: the shipped network file")
     parser.add_argument(
+        "--ship-budget",
+        type=int,
+        default=None,
+        help="--aggregate with several --budgets: the budget of the shipped network (default the largest)",
+    )
+    parser.add_argument("--figure", default=None, help="--aggregate: write success_vs_solves here (PNG)")
+    parser.add_argument(
         "--update",
         default=None,
         metavar="JSON",
@@ -576,8 +591,8 @@ def main(argv: list[str] | None = None) -> int:
         "benchmarks/results/closed_loop.json: the glider block added beside the acrobot's)",
     )
     args = parser.parse_args(argv)
-    if args.aggregate and not (args.network and args.budgets and "," not in args.budgets and "," not in args.tasks):
-        parser.error("--aggregate needs --network, a single --budgets value and a single task")
+    if args.aggregate and not (args.network and args.budgets and "," not in args.tasks):
+        parser.error("--aggregate needs --network, --budgets and a single task")
     out = Path(args.out or f"/tmp/seagul-bench-closed-loop{'-quick' if args.quick else ''}")
     ship = None if (args.quick or args.no_ship) else ROOT / "benchmarks" / "results" / "networks"
     result: dict[str, Any] = {}
@@ -601,7 +616,9 @@ def main(argv: list[str] | None = None) -> int:
         if args.budgets:
             bench.budgets = tuple(int(b) for b in args.budgets.split(","))
         if args.aggregate:
-            result[task] = aggregate_task(bench, Path(args.aggregate), Path(args.network), bench.budgets[0])
+            shipped_budget = args.ship_budget or max(bench.budgets)
+            figure = Path(args.figure) if args.figure else None
+            result[task] = aggregate_task(bench, Path(args.aggregate), Path(args.network), shipped_budget, figure)
         else:
             result[task] = run_task(bench, out / task, args.workers, ship)
     result["machine"] = {**machine(), "wall_s": round(time.perf_counter() - t0, 1)}

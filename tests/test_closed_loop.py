@@ -271,3 +271,36 @@ def test_bench_glider_block_carries_the_contract_fields_and_update_keeps_other_t
     merged = json.loads(target.read_text())
     assert merged["acrobot"] == {"success_rate": 0.9} and merged["glider"]["success_rate"] == 0.7
     assert "glider" in merged["machines"]
+
+
+def test_bench_aggregates_several_budgets_with_grid_only_rows_and_draws_the_curve(tmp_path, monkeypatch):
+    """``--aggregate`` over budgets: per-budget folders, a budget may lack seeds or held-out rates; the contract's
+    fields are the shipped budget's; the figure is written."""
+    import importlib
+    import json
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.syspath_prepend(str(root / "benchmarks"))
+    bench_mod = importlib.import_module("bench_closed_loop")
+    glider = bench_mod.BenchConfig.for_task("glider", quick=False)
+    glider.budgets = (2000, 3000)
+    glider.seed_list = (0, 1)
+    (tmp_path / "b2000").mkdir()
+    (tmp_path / "b3000").mkdir()
+    grid_only = {"success_rate": 0.5, "fallback_steps": 3}
+    (tmp_path / "b2000" / "seed0.json").write_text(json.dumps(grid_only))
+    (tmp_path / "b2000" / "seed1.json").write_text(json.dumps({**grid_only, "success_rate": 0.7}))
+    full_row = {"success_rate": 0.9, "heldout_success_rate": 0.8, "fallback_steps": 1, "solve_time_s": 600.0}
+    full_row["query_error"] = {"median": 5.0, "p95": 50.0, "mean_signed": -1.0}
+    (tmp_path / "b3000" / "seed0.json").write_text(json.dumps(full_row))  # seed 1 not evaluated at 3000
+    (tmp_path / "full-horizon.json").write_text(json.dumps({"success_rate": 1.0, "heldout_success_rate": None}))
+    timing = {"median_ms": 5.0, "p95_ms": 9.0, "steps": 3, "success_rate": 1.0}
+    monkeypatch.setattr(bench_mod, "timed_steps", lambda *a: timing)
+    figure = tmp_path / "curve.png"
+    block = bench_mod.aggregate_task(glider, tmp_path, Path("net.pt"), 3000, figure)
+    assert block["budget"] == 3000 and block["perch_success_rate"] == 0.9 and block["heldout_success_rate"] == 0.8
+    rows = block["methods"][bench_mod.SHIPPED]["budgets"]
+    assert rows["2000"]["success_median"] == 0.6 and rows["2000"]["seeds"] == [0, 1]
+    assert np.isnan(rows["2000"]["heldout_median"]) and rows["3000"]["seeds"] == [0]
+    assert block["train_settings"]["value_cap"] == 1500.0 and figure.stat().st_size > 0
