@@ -68,6 +68,9 @@ class PolicySpec:
     """Value network file (``"mpc"``) or SB3 model zip (``"sb3"``)."""
     options: tuple[tuple[str, Any], ...] = ()
     """Constructor options (e.g. ``(("horizon", 5), ("trust_region", "box"))``)."""
+    knows_robot: bool = False
+    """In an evaluation over robots (:func:`evaluate`'s ``robots``), build the policy for the episode's true robot
+    (``task.with_params(theta)``: e.g. the full-horizon MPC that knows the true parameters) instead of the model."""
 
     def __post_init__(self) -> None:
         if self.kind not in POLICY_KINDS:
@@ -113,6 +116,9 @@ class EpisodeResult:
     queries: list[list[float]] = field(default_factory=list)
     """The MPC's planned terminal states and their times to go, ``[*x_n, tau_n]`` per step whose terminal cost was
     the learned value (the planner's queries of ``Vhat``), when recorded."""
+    robot: list[float] = field(default_factory=list)
+    """The simulated robot's parameters ``theta`` (``task.parameters.names`` order) in an evaluation over robots;
+    empty when the episode ran on the model."""
 
 
 # ------------------------------------------------------------------------------------------------ starts
@@ -223,8 +229,13 @@ def build_policy(task: Task | str, spec: PolicySpec) -> Any:
     content: solvers are built once)."""
     task = _canonical_task(task)
     key = (task.fingerprint(), spec)
-    if key in _POLICIES:
-        return _POLICIES[key]
+    if key not in _POLICIES:
+        _POLICIES[key] = _build(task, spec)
+    return _POLICIES[key]
+
+
+def _build(task: Task, spec: PolicySpec) -> Any:
+    """A new predictor described by ``spec`` for ``task`` (uncached)."""
     options = spec.option_dict()
     if spec.kind == "lqr":
         from seagul_control.lqr import LQRPolicy
@@ -246,7 +257,6 @@ def build_policy(task: Task | str, spec: PolicySpec) -> Any:
         policy = LimitedLookaheadMPC(task, value_function, horizon, **options)
     else:
         policy = SB3Policy(task, str(spec.path), **options)
-    _POLICIES[key] = policy
     return policy
 
 
@@ -273,12 +283,20 @@ def run_episode(
     record: bool = False,
     record_queries: bool = False,
     env_id: str | None = None,
+    robot: np.ndarray | None = None,
 ) -> EpisodeResult:
     """One episode of the policy ``spec`` describes from ``x0`` at the nominal time to go (``task``: a Task or a
-    registered name), in ``gym.make(env_id)`` if given (another simulator of the task), else the task's env."""
+    registered name), in ``gym.make(env_id)`` if given (another simulator of the task), else the task's env; with
+    ``robot``, the env simulates the robot with those parameters (the policy plans with the model unless
+    ``spec.knows_robot``: then it is built for that robot, once per episode, and not cached)."""
     task = _canonical_task(task)
-    policy = build_policy(task, spec)
-    episode, infos = run_policy_episode(task, policy, x0, index=index, record=record, label=spec.name, env_id=env_id)
+    if robot is not None and spec.knows_robot:
+        policy = _build(task.with_params(robot), spec)
+    else:
+        policy = build_policy(task, spec)
+    episode, infos = run_policy_episode(
+        task, policy, x0, index=index, record=record, label=spec.name, env_id=env_id, robot=robot
+    )
     if record_queries:
         episode.queries = [
             [*info.terminal_state, float(info.terminal_tau)] for info in infos if info.terminal_state is not None
@@ -296,13 +314,16 @@ def run_policy_episode(
     label: str = "",
     env_id: str | None = None,
     frames: list[np.ndarray] | None = None,
+    robot: np.ndarray | None = None,
 ) -> tuple[EpisodeResult, list[Any]]:
     """One episode of a predictor object from ``x0`` in the task's env; also returns its per-step solver infos.
 
     The env is ``gym.make(env_id)`` if given, else :func:`episode_env` (``make_env(task)``). The infos are the
     MPC's :class:`~seagul_control.mpc.MPCStepInfo` of each step (empty for policies without ``stats``); they carry
     the planned terminal states (the planner's queries of the value function). With a list as ``frames``, the env
-    runs with ``render_mode="rgb_array"`` and every frame (the start, then one per step) is appended to it.
+    runs with ``render_mode="rgb_array"`` and every frame (the start, then one per step) is appended to it. With
+    ``robot`` the env simulates the robot with those parameters (``reset(options={"params": robot})``); success and
+    cost are judged by the task's rule as always.
     """
     import gymnasium as gym
 
@@ -310,7 +331,10 @@ def run_policy_episode(
 
     render: dict[str, Any] = {} if frames is None else {"render_mode": "rgb_array"}
     env = gym.make(env_id, **render) if env_id else episode_env(task, **render)
-    obs, info = env.reset(options={"state": np.asarray(x0, dtype=float)})
+    reset: dict[str, Any] = {"state": np.asarray(x0, dtype=float)}
+    if robot is not None:
+        reset["params"] = np.asarray(robot, dtype=float)
+    obs, info = env.reset(options=reset)
     if frames is not None:
         frames.append(np.asarray(env.render()))
     stats = getattr(policy, "stats", None)
@@ -348,6 +372,7 @@ def run_policy_episode(
         iterations=[int(s.iterations) for s in episode],
         fallbacks=sum(1 for s in episode if s.source != "solver"),
         states=states,
+        robot=[] if robot is None else np.asarray(robot, dtype=float).tolist(),
     )
     return result, episode
 
@@ -383,9 +408,11 @@ def _run_chunk(
     record: bool,
     record_queries: bool = False,
     env_id: str | None = None,
+    robots: np.ndarray | None = None,
 ) -> list[EpisodeResult]:
     return [
-        run_episode(task, spec, x0, i, record, record_queries, env_id) for x0, i in zip(starts, indices, strict=True)
+        run_episode(task, spec, x0, i, record, record_queries, env_id, None if robots is None else robots[k])
+        for k, (x0, i) in enumerate(zip(starts, indices, strict=True))
     ]
 
 
@@ -399,8 +426,13 @@ def evaluate(
     chunk_size: int = 4,
     record_queries: bool = False,
     env_id: str | None = None,
+    robots: np.ndarray | None = None,
 ) -> list[EpisodeResult]:
     """Every policy from every start (joblib processes when ``workers > 1``); results ordered by policy, start.
+
+    ``robots`` (one row of ``task.parameters`` values per start): episode ``i`` runs on the robot ``robots[i]``
+    (robust control, domain randomisation); the policies plan with the model task unless their spec
+    ``knows_robot`` (the oracle that plans with the true parameters).
 
     ``task`` is a Task object or a registered name, resolved once here; the Task itself is what the worker
     processes receive (nothing is looked up by name there). ``record`` keeps every visited state,
@@ -420,12 +452,24 @@ def evaluate(
         raise ValueError(f"workers must be >= 1, got {workers}")
     if env_id is not None:
         check_env_task(task, env_id)
+    if robots is not None:
+        if task.parameters is None:
+            raise ValueError(f"{task_name}: robots need a task that declares which parameters vary (Task.parameters)")
+        robots = np.asarray(robots, dtype=float)
+        if robots.shape != (starts.shape[0], task.parameters.size):
+            raise ValueError(
+                f"robots must have one row of {task.parameters.size} parameters {list(task.parameters.names)} per "
+                f"start, shape ({starts.shape[0]}, {task.parameters.size}), got {robots.shape}"
+            )
+        for row in robots:
+            task.parameters.check(row, task_name)
     names = [s.name for s in specs]
     if len(set(names)) != len(names):
         raise ValueError(f"policy labels must be unique, got {names}")
     # Build each policy here first: a JIT compile then happens once and the workers load the cached object code.
     for spec in specs:
-        build_policy(task, spec)
+        if not (robots is not None and spec.knows_robot):
+            build_policy(task, spec)
     jobs = []
     for spec in specs:
         for lo in range(0, len(starts), chunk_size):
@@ -435,7 +479,8 @@ def evaluate(
     results: list[EpisodeResult] = []
     if workers == 1:
         outputs: Iterator[list[EpisodeResult]] = (
-            _run_chunk(task, spec, starts[idx], idx, record, record_queries, env_id) for spec, idx in jobs
+            _run_chunk(task, spec, starts[idx], idx, record, record_queries, env_id, _rows(robots, idx))
+            for spec, idx in jobs
         )
     else:
         # A task read from a file (``--task path/file.py:factory``) lives in a module that joblib's reused worker
@@ -447,7 +492,8 @@ def evaluate(
         for module in file_task_modules():
             register_pickle_by_value(module)
         outputs = Parallel(n_jobs=int(workers), return_as="generator")(
-            delayed(_run_chunk)(task, spec, starts[idx], idx, record, record_queries, env_id) for spec, idx in jobs
+            delayed(_run_chunk)(task, spec, starts[idx], idx, record, record_queries, env_id, _rows(robots, idx))
+            for spec, idx in jobs
         )
     for chunk in outputs:
         results.extend(chunk)
@@ -456,6 +502,10 @@ def evaluate(
     order = {name: k for k, name in enumerate(names)}
     results.sort(key=lambda r: (order[r.policy], r.index))
     return results
+
+
+def _rows(robots: np.ndarray | None, idx: list[int]) -> np.ndarray | None:
+    return None if robots is None else robots[idx]
 
 
 # ------------------------------------------------------------------------------------------------ moved names

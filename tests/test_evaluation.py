@@ -218,3 +218,35 @@ def test_deprecated_write_outputs_gives_the_same_files(tmp_path):
         assert old[key].read_bytes() == new[key].read_bytes()
     with pytest.warns(DeprecationWarning):
         assert ev.summarize("acrobot", episodes) == summarize("acrobot", episodes)
+
+
+def test_evaluation_over_robots_simulates_each_episodes_robot_and_the_oracle_plans_with_it():
+    """``evaluate(..., robots=...)``: episode i runs on robot i (recorded on the result); a policy plans with the
+    model unless its spec knows the robot; the model's own parameters reproduce the plain evaluation exactly."""
+    task = make_task("acrobot")
+    starts = start_grid(task, 2)[0][:2]
+    model = PolicySpec("lqr", "lqr")
+    oracle = PolicySpec("lqr", "lqr-oracle", knows_robot=True)
+    plain = evaluate(task, [model], starts, progress=False)
+    same = evaluate(task, [model], starts, progress=False, robots=np.tile(task.theta, (2, 1)))
+    assert [r.final_state for r in same] == [r.final_state for r in plain]
+    assert same[0].robot == task.theta.tolist() and plain[0].robot == []
+    heavy = np.tile(task.parameters.high, (2, 1))
+    runs = evaluate(task, [model, oracle], starts, progress=False, robots=heavy)
+    on_model, on_oracle = runs[:2], runs[2:]
+    assert all(r.robot == task.parameters.high.tolist() for r in runs)
+    assert not np.allclose(on_model[0].final_state, plain[0].final_state)  # another robot flew the episode
+    assert not np.allclose(on_model[0].final_state, on_oracle[0].final_state)  # the oracle planned for it
+    # The oracle's episode is the LQR of the true robot on that robot (built independently here).
+    from seagul_control.evaluation import run_policy_episode
+    from seagul_control.lqr import LQRPolicy
+
+    robot_task = task.with_params(task.parameters.high)
+    ref, _ = run_policy_episode(task, LQRPolicy(robot_task), starts[0], robot=task.parameters.high)
+    np.testing.assert_allclose(on_oracle[0].final_state, ref.final_state, rtol=1e-12)
+    mj = evaluate(task, [model], starts[:1], progress=False, robots=heavy[:1], env_id="SeagulAcrobotMujoco-v0")
+    np.testing.assert_allclose(mj[0].final_state, on_model[0].final_state, atol=1e-5)
+    with pytest.raises(ValueError, match=r"robots must have one row of 6 parameters"):
+        evaluate(task, [model], starts, progress=False, robots=heavy[:, :2])
+    with pytest.raises(ValueError, match="must not be negative"):
+        evaluate(task, [model], starts, progress=False, robots=-heavy)
