@@ -58,6 +58,7 @@ import io
 import json
 import math
 import os
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
@@ -175,6 +176,14 @@ class TrainConfig:
     (``refit_steps`` Adam steps, as the final refit: the network that would be deployed if training stopped there)
     instead of the loop's network, so the queries are the deployed controller's (DAgger). Costs one refit per such
     round; the loop's own training is unchanged. Needs ``refit_steps > 0``."""
+    cl_keep_best: bool = False
+    """Closed-loop: deploy the collector that flew best. Each round's collecting MPC runs ``cl_episodes`` episodes
+    from new X0 starts (never the evaluation's) with the network of the round before; the network of the round whose
+    deployed collector (guard ``cl_trust_region``) succeeded most often (ties: the later, trained on more data) is
+    kept as ``network_best.pt`` (with ``network_best.json``: its round, successes, solves) and becomes
+    ``network.pt``, the loop's last network ``network_last.pt``; snapshots are the best so far. Model selection on
+    training episodes: round-to-round closed-loop success swings widely (glider: 4 to 19 of 20 over 60 rounds of one
+    seed, docs/closed_loop.md). Needs the closed-loop sampler and ``refit_steps = 0``."""
     value_cap: float = 0.0
     """Labels above this value are clipped to it and their gradient labels dropped (0 = off): a tail problem from
     a far-off query can cost 1e4 and would otherwise swamp the loss; the clipped label still says "expensive"."""
@@ -263,6 +272,11 @@ class TrainConfig:
             raise ValueError(f"refit_ensemble must be >= 0 and needs refit_steps > 0, got {self.refit_ensemble}")
         if self.cl_collect_refit and not self.refit_steps:
             raise ValueError("cl_collect_refit needs refit_steps > 0 (the collecting network is a refit)")
+        if self.cl_keep_best and (self.sampler != "closed-loop" or self.refit_steps):
+            raise ValueError(
+                "cl_keep_best needs sampler='closed-loop' and refit_steps=0 (it deploys a network a collector flew; "
+                f"got sampler={self.sampler!r}, refit_steps={self.refit_steps})"
+            )
         if not (self.value_cap >= 0 and math.isfinite(self.value_cap)):
             raise ValueError(f"value_cap must be a number >= 0 (0 = off), got {self.value_cap}")
         if not (self.grad_label_max >= 0 and math.isfinite(self.grad_label_max)):
@@ -764,6 +778,9 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
             # Deterministic from (buffer, seed, round): a resumed run recomputes the same collecting network.
             collecting = refit(config, task, buffer, _Trainer(config, network, None), round_index=round_index)
         records = sampler.sample(n_new, collecting, runner)
+        if config.cl_keep_best:
+            spent = config.pretrain_solves + len(budget_records)
+            _keep_best(out, config, getattr(sampler, "log", []), collecting, spent)
         budget_records += records
         new = training_arrays(records, task.nx)
         newest = np.arange(len(buffer), len(buffer) + len(new))
@@ -788,7 +805,11 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
             trainer.record_metric(solves, failures, buffer_solves)
         _save_checkpoint(checkpoint_path, trainer, round_index + 1, sampler, runner.next_index)
         if solves in config.snapshots:
-            network.save(out / f"network_{solves}.pt")
+            best = out / "network_best.pt"
+            if config.cl_keep_best and best.is_file():
+                shutil.copyfile(best, out / f"network_{solves}.pt")  # the method at this budget: the best so far
+            else:
+                network.save(out / f"network_{solves}.pt")
         bar.set_postfix(mse_initial=f"{trainer.metrics[-1].mse_initial:.3g}", failures=failures)
         bar.update(1)
     bar.close()
@@ -799,6 +820,9 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
         trainer.record_metric(
             len(budget_records), count_failures(budget_records), config.pretrain_solves + len(budget_records)
         )
+    if config.cl_keep_best and (out / "network_best.pt").is_file():
+        network.save(out / "network_last.pt")
+        network = ValueNetwork.load(out / "network_best.pt")
     network.save(out / "network.pt")
     _write_metrics(out, trainer.metrics, config, getattr(sampler, "log", None))
     return TrainResult(network, trainer.metrics, out, len(budget_records), count_failures(budget_records), dataset)
@@ -835,6 +859,33 @@ def refit(
 
 
 # ------------------------------------------------------------------------------------------------- checkpoints
+def _keep_best(out: Path, config: TrainConfig, log: list[dict[str, Any]], collecting: ValueModel, solves: int) -> None:
+    """``cl_keep_best``: save ``collecting`` as ``network_best.pt`` when the round just logged is the best deployed
+    collector so far (ties: the later). The best so far is recomputed from the log (resume-safe: a redone round
+    rewrites the same file)."""
+
+    def rate(entry: dict[str, Any]) -> float | None:
+        if entry.get("collector") != config.cl_trust_region or not entry.get("episodes"):
+            return None
+        return float(entry["episode_successes"]) / float(entry["episodes"])
+
+    if not log or (now := rate(log[-1])) is None:
+        return
+    earlier = [r for r in (rate(e) for e in log[:-1]) if r is not None]
+    if earlier and now < max(earlier):
+        return
+    collecting.save(out / "network_best.pt")
+    entry = log[-1]
+    info = {
+        "round": int(entry["round"]),
+        "episode_successes": int(entry["episode_successes"]),
+        "episodes": int(entry["episodes"]),
+        "solves_before_round": int(solves),
+        "note": "the network the round's collector flew (trained on the solves before the round)",
+    }
+    atomic_write_text(out / "network_best.json", json.dumps(info, indent=1) + "\n")
+
+
 def _save_checkpoint(path: Path, trainer: _Trainer, rounds_done: int, sampler: Sampler, next_index: int) -> None:
     pool_position = sampler.pool.position
     payload: dict[str, Any] = {

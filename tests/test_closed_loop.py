@@ -304,3 +304,54 @@ def test_bench_aggregates_several_budgets_with_grid_only_rows_and_draws_the_curv
     assert rows["2000"]["success_median"] == 0.6 and rows["2000"]["seeds"] == [0, 1]
     assert np.isnan(rows["2000"]["heldout_median"]) and rows["3000"]["seeds"] == [0]
     assert block["train_settings"]["value_cap"] == 1500.0 and figure.stat().st_size > 0
+
+
+def test_keep_best_deploys_the_network_the_best_collector_flew(tmp_path):
+    """``cl_keep_best``: only deployed collectors count, ties go to the later round, ``network.pt`` is the kept one
+    (``network_last.pt`` the loop's), and the choice follows the sampler log."""
+    from seagul_learn.training import _keep_best
+    from seagul_learn.value_network import ValueNetwork
+
+    config = _cl_config(tmp_path, cl_keep_best=True)
+    rates = [("lqr", 2), ("none", 1), ("none", 3), ("none", 2), ("none", 3), ("none", 0)]
+    log: list[dict] = []
+    saved = []
+    for r, (collector, wins) in enumerate(rates):
+        log.append({"round": r, "collector": collector, "episodes": 4, "episode_successes": wins})
+        net = ValueNetwork(4, (4,), task_name="acrobot", seed=r)
+        _keep_best(tmp_path, config, log, net, 100 + r)
+        info = (
+            json.loads((tmp_path / "network_best.json").read_text())
+            if (tmp_path / "network_best.json").is_file()
+            else None
+        )
+        saved.append(None if info is None else info["round"])
+    assert saved == [None, 1, 2, 2, 4, 4]
+    kept = ValueNetwork.load(tmp_path / "network_best.pt")
+    np.testing.assert_array_equal(
+        kept.casadi_parameters(), ValueNetwork(4, (4,), task_name="acrobot", seed=4).casadi_parameters()
+    )
+    with pytest.raises(ValueError, match="cl_keep_best needs sampler='closed-loop' and refit_steps=0"):
+        _cl_config(tmp_path, cl_keep_best=True, refit_steps=10)
+    # In a run: network.pt is the kept network, the loop's last is network_last.pt.
+    toy = ToySolver(make_task("acrobot"))
+    run = tmp_path / "run"
+    result = train(
+        _cl_config(tmp_path, cl_keep_best=True, cl_warmup_rounds=0, cl_episodes=2, snapshots=(12,)),
+        run,
+        batch_solver=toy,
+        solver_name="toy",
+    )
+    best = json.loads((run / "network_best.json").read_text())
+    log = json.loads((run / "metrics.json").read_text())["sampler_log"]
+    deployed = [e for e in log if e.get("collector") == "none"]
+    top = max(e["episode_successes"] for e in deployed)
+    assert best["round"] == max(e["round"] for e in deployed if e["episode_successes"] == top)
+    np.testing.assert_array_equal(
+        ValueNetwork.load(run / "network.pt").casadi_parameters(),
+        ValueNetwork.load(run / "network_best.pt").casadi_parameters(),
+    )
+    assert (run / "network_last.pt").is_file() and (run / "network_12.pt").is_file()
+    np.testing.assert_array_equal(
+        result.network.casadi_parameters(), ValueNetwork.load(run / "network.pt").casadi_parameters()
+    )
