@@ -416,6 +416,10 @@ def test_envs_with_params_simulate_the_rebuilt_task_and_randomise_per_episode() 
     assert env.unwrapped.params["m2"] == 1.1
     env.reset(options={"params": {}})
     assert env.unwrapped.task is env.unwrapped.model_task
+    kernels = dict(env.unwrapped._kernels)  # one model kernel and one parametric kernel, built once
+    for params in ({"m1": 0.9}, {}, {"m1": 1.1}, {}):
+        env.reset(options={"params": params})
+    assert env.unwrapped._kernels == kernels and len(kernels) == 2
     theta = make_task("acrobot").parameters.sample(np.random.default_rng(0))
     env.reset(options={"params": theta})
     np.testing.assert_array_equal(env.unwrapped.task.theta, theta)

@@ -456,25 +456,28 @@ class TaskSimulatorEnv(SeagulEnv):
     """
 
     def _restore_runtime(self) -> None:
-        # The model's own kernels; another robot (params) steps the parametric ones with its theta as an input, so
-        # domain randomisation never builds a kernel per reset.
-        if self.task is self.model_task:
-            self._kernel = BufferedFunction(step_function(self.task, self.dt, self.max_substep))
-        else:
-            self._kernel = BufferedFunction(step_function(self.model_task, self.dt, self.max_substep, params=True))
-            self._kernel.args[2][:] = self.task.theta
-        self._kernel_h: BufferedFunction | None = None  # built on the first shortened step
+        # The model's own kernels, and for another robot (params) the parametric ones with its theta as an input:
+        # each built once per env, so domain randomisation never builds a kernel at a reset.
+        self._kernels: dict[bool, BufferedFunction] = {}
+        self._kernels_h: dict[bool, BufferedFunction] = {}  # shortened last steps, built on first use
+        self._params_changed()
 
     def _params_changed(self) -> None:
-        if self.task is not self.model_task and self._kernel.function.n_in() == 3:
-            self._kernel.args[2][:] = self.task.theta
+        parametric = self.task is not self.model_task
+        if parametric not in self._kernels:
+            self._kernels[parametric] = BufferedFunction(
+                step_function(self.model_task, self.dt, self.max_substep, params=parametric)
+            )
+        self._kernel = self._kernels[parametric]
+        self._kernel_h: BufferedFunction | None = self._kernels_h.get(parametric)
+        if parametric:
+            theta = self.task.theta
+            self._kernel.args[2][:] = theta
             if self._kernel_h is not None:
-                self._kernel_h.args[3][:] = self.task.theta
-        else:
-            self._restore_runtime()
+                self._kernel_h.args[3][:] = theta
 
     def _runtime_keys(self) -> tuple[str, ...]:
-        return ("_kernel", "_kernel_h")
+        return ("_kernels", "_kernels_h", "_kernel", "_kernel_h")
 
     def _set_sim_state(self, x: np.ndarray) -> None:
         pass  # the state lives in self._x
@@ -485,8 +488,9 @@ class TaskSimulatorEnv(SeagulEnv):
         else:
             if self._kernel_h is None:
                 substeps = max(1, math.ceil(self.dt / self.max_substep - 1e-9))  # h < dt: substeps stay shorter
-                parametric = self._kernel.function.n_in() == 3
+                parametric = self.task is not self.model_task
                 self._kernel_h = BufferedFunction(variable_step_function(self.model_task, substeps, parametric))
+                self._kernels_h[parametric] = self._kernel_h
                 if parametric:
                     self._kernel_h.args[3][:] = self.task.theta
             kernel = self._kernel_h
