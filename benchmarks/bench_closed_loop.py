@@ -99,11 +99,12 @@ SHIPPED = "closed-loop+sobolev"
 #: Per-task changes to :data:`FULL_TRAIN` and to the shipped recipe. The glider (docs/closed_loop.md, "The glider"):
 #: values of 40-1,000 on X0, so the cap sits above them; its tails impose the perch box and path bounds softly
 #: (``task.profile.solver``), so no tail fails; the closed loop collects with the deployed, unguarded MPC from the
-#: first round, and the loop's own network is shipped (a 20 k-step refit of the same 2,000 solves perched on 25 % of
-#: the grid where the loop's network perched on 94 %, seed 0).
+#: first round, and the network of the collector that flew best is shipped (``cl_keep_best``: the loop's last
+#: network perched on a median of 63.9 % of the grid, the best collector's on 91.7 %, 5 seeds; a 20 k-step refit of
+#: the same 2,000 solves on 25 % where the loop's perched on 94 %, seed 0).
 TASK_TRAIN: dict[str, dict[str, Any]] = {"glider": {"value_cap": 1500.0, "refit_steps": 0}}
 TASK_SHIPPED: dict[str, dict[str, Any]] = {
-    "glider": {"cl_warmup_rounds": 0, "cl_collect_refit": False, "refit_ensemble": 1}
+    "glider": {"cl_warmup_rounds": 0, "cl_collect_refit": False, "refit_ensemble": 1, "cl_keep_best": True}
 }
 
 
@@ -371,32 +372,50 @@ def summarize(bench: BenchConfig, table: dict[str, dict[int, list[dict[str, Any]
                 "fallback_steps_median": _median(seeds, "fallback_steps"),
             }
             if method != SHIPPED and SHIPPED in table and budget in table[SHIPPED]:
-                shipped = [s["success_rate"] for s in table[SHIPPED][budget]]
-                rows[str(budget)]["vs_shipped"] = paired_test(shipped, succ)
+                paired = {s.get("seed"): s["success_rate"] for s in table[SHIPPED][budget]}
+                if sorted(paired) == sorted(s.get("seed") for s in seeds):  # the same seeds: a paired test
+                    shipped = [paired[s.get("seed")] for s in seeds]
+                    rows[str(budget)]["vs_shipped"] = paired_test(shipped, succ)
             if reached is None and np.median(succ) >= target:
                 reached = budget
         out[method] = {"budgets": rows, "smallest_budget_98pct_of_full_horizon": reached}
     return out
 
 
-def plot(summary: dict[str, Any], full: dict[str, Any], path: Path, title: str) -> None:
-    """``success_vs_solves.png``: success vs solves and vs cumulative solve time, median and band over seeds."""
+def plot(
+    summary: dict[str, Any], full: dict[str, Any], path: Path, title: str, labels: dict[str, str] | None = None
+) -> None:
+    """``success_vs_solves.png``: success vs solves and vs cumulative solve time, median and band (quartiles) over
+    seeds; a point with fewer seeds than the method's most is marked ``n=<seeds>``. Without recorded solve times
+    (aggregated evaluations) only the first panel is drawn. ``labels``: legend names of methods."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(12, 4.5), constrained_layout=True)
+    def timed(block: dict[str, Any]) -> bool:
+        return all(np.isfinite(r["solve_time_s_median"]) and r["solve_time_s_median"] > 0 for r in block.values())
+
+    with_times = all(timed(b["budgets"]) for b in summary.values())
+    fig, axes_arr = plt.subplots(1, 2 if with_times else 1, figsize=(12 if with_times else 7, 4.5), squeeze=False)
+    axes = list(axes_arr[0])
     for method, block in summary.items():
         budgets = sorted(int(b) for b in block["budgets"])
         rows = [block["budgets"][str(b)] for b in budgets]
         med = [100 * r["success_median"] for r in rows]
         lo = [100 * r["success_q25"] for r in rows]
         hi = [100 * r["success_q75"] for r in rows]
-        for ax, xs in ((axes[0], budgets), (axes[1], [r["solve_time_s_median"] for r in rows])):
-            (line,) = ax.plot(xs, med, marker="o", label=method, lw=2.5 if method == SHIPPED else 1.5)
+        counts = [len(r["success_per_seed"]) for r in rows]
+        xs_by_panel = [budgets] + ([[r["solve_time_s_median"] for r in rows]] if with_times else [])
+        name = (labels or {}).get(method, method)
+        for ax, xs in zip(axes, xs_by_panel, strict=True):
+            (line,) = ax.plot(xs, med, marker="o", label=name, lw=2.5 if method == SHIPPED else 1.5)
             ax.fill_between(xs, lo, hi, color=line.get_color(), alpha=0.15)
-    for ax, label in ((axes[0], "NLP solves per network"), (axes[1], "NLP solve time per network (s)")):
+            for x, y, n in zip(xs, med, counts, strict=True):
+                if n < max(counts):
+                    ax.annotate(f"n={n}", (x, y), textcoords="offset points", xytext=(4, 6), fontsize=7)
+    names = ("NLP solves per network", "NLP solve time per network (s)")
+    for ax, label in zip(axes, names, strict=False):
         ax.axhline(100 * full["success_rate"], color="k", ls="--", lw=1, label="full-horizon MPC")
         ax.axhline(98 * full["success_rate"], color="k", ls=":", lw=1, label="98 % of full horizon")
         ax.set_xscale("log")
@@ -404,8 +423,9 @@ def plot(summary: dict[str, Any], full: dict[str, Any], path: Path, title: str) 
         ax.set_ylabel("closed-loop success on the grid (%)")
         ax.set_ylim(-3, 103)
         ax.grid(True, which="both", alpha=0.3)
-    axes[0].legend(fontsize=8, loc="lower right")
+    axes[0].legend(fontsize=8, loc="lower left")
     fig.suptitle(title)
+    fig.tight_layout()
     fig.savefig(path, dpi=110)
     plt.close(fig)
 
@@ -514,38 +534,63 @@ def _task_success_fields(bench: BenchConfig, shipped: list[dict[str, Any]], full
     }
 
 
-def aggregate_task(
-    bench: BenchConfig, eval_dir: Path, network: Path, budget: int, figure: Path | None = None
-) -> dict[str, Any]:
-    """The JSON block of :func:`run_task` rebuilt from stored per-seed evaluations without the training runs: for one
-    budget ``eval_dir/seed<N>.json``, for several (``bench.budgets``) ``eval_dir/b<B>/seed<N>.json`` (a budget may
-    lack some seeds: each row lists its own), and ``eval_dir/full-horizon.json``. The contract's fields are those
-    of ``budget`` (the shipped one); the shipped ``network`` is timed again in this process. Rows may carry the
-    training records' fields (validation MSEs, solve time) and may be grid-only (no held-out rate or query error:
-    NaN). ``figure``: also draw ``success_vs_solves`` there."""
-    seeds = list(bench.seed_list or range(bench.seeds))
-    budgets = sorted(bench.budgets)
+def _stored_rows(folder: Path, seeds: list[int], budgets: list[int] | None) -> dict[int, list[dict[str, Any]]]:
+    """Per-seed evaluations stored in ``folder``: ``b<B>/seed<N>.json`` per budget (``budgets``, or every ``b<B>``
+    folder there when None), or ``seed<N>.json`` directly for the single budget ``budgets[0]``."""
+    if budgets is None:
+        budgets = sorted(int(p.name[1:]) for p in folder.glob("b*") if p.is_dir() and p.name[1:].isdigit())
     table: dict[int, list[dict[str, Any]]] = {}
     for b in budgets:
-        folder = eval_dir if len(budgets) == 1 else eval_dir / f"b{b}"
+        sub = folder / f"b{b}"
+        where = sub if sub.is_dir() else folder
         rows = [
-            {**json.loads((folder / f"seed{seed}.json").read_text()), "seed": seed}
+            {**json.loads((where / f"seed{seed}.json").read_text()), "seed": seed}
             for seed in seeds
-            if (folder / f"seed{seed}.json").is_file()
+            if (where / f"seed{seed}.json").is_file()
         ]
         if not rows:
-            raise FileNotFoundError(f"--aggregate: no evaluation seed<N>.json for budget {b} in {folder}")
+            raise FileNotFoundError(f"--aggregate: no evaluation seed<N>.json for budget {b} in {where}")
         table[b] = rows
+    return table
+
+
+def aggregate_task(
+    bench: BenchConfig,
+    eval_dir: Path,
+    network: Path,
+    budget: int,
+    figure: Path | None = None,
+    compare: dict[str, Path] | None = None,
+    shipped_label: str | None = None,
+) -> dict[str, Any]:
+    """The JSON block of :func:`run_task` rebuilt from stored per-seed evaluations without the training runs:
+    ``eval_dir/b<B>/seed<N>.json`` per budget of ``bench.budgets`` (or ``eval_dir/seed<N>.json`` for one budget; a
+    budget may lack some seeds: each row lists its own), and ``full-horizon.json`` in ``eval_dir`` or its parent.
+    The contract's fields are those of ``budget`` (the shipped one); the shipped ``network`` is timed again in this
+    process. Rows may carry the training records' fields (validation MSEs, solve time) and may be grid-only (no
+    held-out rate or query error: NaN). ``figure``: also draw ``success_vs_solves`` there. ``compare``: other
+    methods' stored evaluations (label -> folder of ``b<B>/seed<N>.json``), summarised and drawn beside."""
+    seeds = list(bench.seed_list or range(bench.seeds))
+    budgets = sorted(bench.budgets)
+    table = _stored_rows(eval_dir, seeds, budgets)
     if budget not in table:
         raise ValueError(f"--aggregate: the shipped budget {budget} is not among the budgets {budgets}")
-    full = json.loads((eval_dir / "full-horizon.json").read_text())
+    # The full horizon's evaluation beside the per-seed ones, or one level up (shared by several methods' folders).
+    full_path = next(
+        (d / "full-horizon.json" for d in (eval_dir, eval_dir.parent) if (d / "full-horizon.json").is_file()), None
+    )
+    if full_path is None:
+        raise FileNotFoundError(f"--aggregate: no full-horizon.json in {eval_dir} or {eval_dir.parent}")
+    full = json.loads(full_path.read_text())
     task = make_task(bench.task)
     grid_starts, _ = start_grid(task, bench.grid)
     timing = timed_steps(bench, network, grid_starts)
     block = shipped_block(bench, table[budget], full, network, timing, budget)
-    summary = summarize(bench, {SHIPPED: table}, full)
+    tables = {SHIPPED: table, **{label: _stored_rows(folder, seeds, None) for label, folder in (compare or {}).items()}}
+    summary = summarize(bench, tables, full)
     if figure is not None:
-        plot(summary, full, figure, f"{bench.task}: {bench.horizon}-step MPC, {len(seeds)} seeds (aggregated)")
+        title = f"{bench.task}: {bench.horizon}-step MPC, up to {len(seeds)} seeds (aggregated evaluations)"
+        plot(summary, full, figure, title, {SHIPPED: shipped_label} if shipped_label else None)
     return {
         **block,
         "budgets": budgets,
@@ -584,6 +629,14 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--figure", default=None, help="--aggregate: write success_vs_solves here (PNG)")
     parser.add_argument(
+        "--compare",
+        action="append",
+        default=[],
+        metavar="LABEL=DIR",
+        help="--aggregate: another method's stored evaluations (DIR/b<B>/seed<N>.json), summarised and drawn beside",
+    )
+    parser.add_argument("--label", default=None, help="--aggregate: the shipped method's name in the figure")
+    parser.add_argument(
         "--update",
         default=None,
         metavar="JSON",
@@ -618,7 +671,16 @@ def main(argv: list[str] | None = None) -> int:
         if args.aggregate:
             shipped_budget = args.ship_budget or max(bench.budgets)
             figure = Path(args.figure) if args.figure else None
-            result[task] = aggregate_task(bench, Path(args.aggregate), Path(args.network), shipped_budget, figure)
+            compare = dict(item.split("=", 1) for item in args.compare)
+            result[task] = aggregate_task(
+                bench,
+                Path(args.aggregate),
+                Path(args.network),
+                shipped_budget,
+                figure,
+                {k: Path(v) for k, v in compare.items()},
+                args.label,
+            )
         else:
             result[task] = run_task(bench, out / task, args.workers, ship)
     result["machine"] = {**machine(), "wall_s": round(time.perf_counter() - t0, 1)}

@@ -237,6 +237,7 @@ def test_bench_glider_block_carries_the_contract_fields_and_update_keeps_other_t
     # What the shipped method trains with (and what the reports' train_settings show) is the task's recipe.
     recipe = bench_mod.method_config(glider, bench_mod.SHIPPED)
     assert (recipe["cl_warmup_rounds"], recipe["cl_collect_refit"], recipe["refit_ensemble"]) == (0, False, 1)
+    assert recipe["cl_keep_best"] is True
     assert recipe["value_cap"] == 1500.0 and recipe["task"] == "glider"
     rows = [
         {"seed": s, "success_rate": r, "heldout_success_rate": r, "query_error": {"median": 1.0, "p95": 2.0}}
@@ -298,7 +299,14 @@ def test_bench_aggregates_several_budgets_with_grid_only_rows_and_draws_the_curv
     timing = {"median_ms": 5.0, "p95_ms": 9.0, "steps": 3, "success_rate": 1.0}
     monkeypatch.setattr(bench_mod, "timed_steps", lambda *a: timing)
     figure = tmp_path / "curve.png"
-    block = bench_mod.aggregate_task(glider, tmp_path, Path("net.pt"), 3000, figure)
+    other = tmp_path / "other" / "b2000"
+    other.mkdir(parents=True)
+    for seed, rate in ((0, 0.25), (1, 0.5)):
+        (other / f"seed{seed}.json").write_text(json.dumps({**grid_only, "success_rate": rate}))
+    block = bench_mod.aggregate_task(glider, tmp_path, Path("net.pt"), 3000, figure, {"last": tmp_path / "other"})
+    versus = block["methods"]["last"]["budgets"]["2000"]
+    assert versus["success_median"] == 0.375 and versus["vs_shipped"]["wins"] == 2  # the shipped method, seed by seed
+    assert versus["vs_shipped"]["median_difference"] == pytest.approx(0.225)
     assert block["budget"] == 3000 and block["perch_success_rate"] == 0.9 and block["heldout_success_rate"] == 0.8
     rows = block["methods"][bench_mod.SHIPPED]["budgets"]
     assert rows["2000"]["success_median"] == 0.6 and rows["2000"]["seeds"] == [0, 1]
