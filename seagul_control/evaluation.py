@@ -288,12 +288,15 @@ def run_episode(
     """One episode of the policy ``spec`` describes from ``x0`` at the nominal time to go (``task``: a Task or a
     registered name), in ``gym.make(env_id)`` if given (another simulator of the task), else the task's env; with
     ``robot``, the env simulates the robot with those parameters (the policy plans with the model unless
-    ``spec.knows_robot``: then it is built for that robot, once per episode, and not cached)."""
+    ``spec.knows_robot``: then a policy whose solvers take the parameters, ``FullHorizonMPC(model_params=True)``,
+    is re-targeted with ``set_robot``; any other is built for that robot, once per episode, and not cached)."""
     task = _canonical_task(task)
-    if robot is not None and spec.knows_robot:
+    policy = build_policy(task, spec)
+    if getattr(policy, "model_params", False):
+        # Its solvers take the robot's parameters: the oracle re-targets the one built policy (None: the model).
+        policy.set_robot(robot if spec.knows_robot else None)
+    elif robot is not None and spec.knows_robot:
         policy = _build(task.with_params(robot), spec)
-    else:
-        policy = build_policy(task, spec)
     episode, infos = run_policy_episode(
         task, policy, x0, index=index, record=record, label=spec.name, env_id=env_id, robot=robot
     )

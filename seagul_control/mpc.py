@@ -169,6 +169,7 @@ class _Problem:
         guess: np.ndarray,
         lam_g: np.ndarray | None = None,
         lam_x: np.ndarray | None = None,
+        model_params: np.ndarray | None = None,
     ) -> TranscriptionSolution:
         trans = self.trans
         if self.pin_first_step:
@@ -184,7 +185,8 @@ class _Problem:
                 for k in range(1, trans.horizon):
                     trans.set(k, "lbh", lo_k)
                     trans.set(k, "ubh", hi_k)
-        return trans.solve(x, tau, theta, guess=guess, lam_g=lam_g, lam_x=lam_x)
+        phys = model_params if trans.model_params else None
+        return trans.solve(x, tau, theta, guess=guess, lam_g=lam_g, lam_x=lam_x, model_params=phys)
 
     def cold_guess(self, x: np.ndarray, tau: float, dt: float, kind: str) -> np.ndarray:
         """A first guess: a zero-input rollout (``"rollout"``) or the transcription's straight line (``"line"``)."""
@@ -299,6 +301,9 @@ class _MPCBase:
         """Per env of the last ``predict`` call."""
         self.stats: list[MPCStepInfo] = []
         """Every step since construction or :meth:`reset_stats`."""
+        self.model_params = False
+        """True when the solvers take the robot's physical parameters (``set_robot``)."""
+        self._robot: np.ndarray | None = None
 
     # ------------------------------------------------------------------ protocol
     def predict(
@@ -348,7 +353,7 @@ class _MPCBase:
         else:
             guess = problem.cold_guess(x, tau, self.dt, self.cold_guess)
         try:
-            sol = problem.solve(x, tau, theta, self.dt, guess, lam_g, lam_x)
+            sol = problem.solve(x, tau, theta, self.dt, guess, lam_g, lam_x, self._robot)
             ok = sol.success and bool(np.all(np.isfinite(sol.controls[0])))
             status, iters, solve_time, objective = sol.status, sol.iterations, sol.solve_time, sol.objective
         except Exception as exc:  # a solver exception must not stop a closed loop
@@ -877,11 +882,15 @@ class FullHorizonMPC(_MPCBase):
         horizon: int | None = None,
         warm_start: bool = True,
         cold_guess: str = "line",
+        model_params: bool = False,
     ) -> None:
         super().__init__(task, dt, warm_start, cold_guess)
         self._configure_solver(
             solver, not task.fixed_step, jit, jit_cache_dir, jit_flags, max_iter, tol, solver_options
         )
+        if model_params and task.parameters is None:
+            raise ValueError(f"{self.name}: model_params=True needs a task that declares which parameters vary")
+        self.model_params = bool(model_params)
         self.substeps = substeps
         self.free_time = not task.fixed_step
         self.horizon = int(task.num_steps if horizon is None else horizon)
@@ -900,7 +909,17 @@ class FullHorizonMPC(_MPCBase):
                 time_mode="equal",
                 final_box=True,
                 substeps=substeps,
+                model_params=self.model_params,
             )
+
+    def set_robot(self, theta: Any) -> None:
+        """Plan for the robot with parameters ``theta`` (``task.parameters`` order or a mapping; None: the model's
+        own): the oracle that knows the true robot, with the solvers built once (``model_params=True``)."""
+        if not self.model_params:
+            raise ValueError(f"{self.name}: set_robot needs FullHorizonMPC(..., model_params=True)")
+        space = self.task.parameters
+        assert space is not None  # checked at construction
+        self._robot = None if theta is None else space.resolve(theta, self.task.theta, self.task.name)
 
     def _select(self, tau: float) -> tuple[_Problem, np.ndarray]:
         if self.free_time:
@@ -908,7 +927,14 @@ class FullHorizonMPC(_MPCBase):
         n = max(1, round(tau / self.dt))
         if n not in self._problems:
             self._problems[n] = self._build(
-                "full", False, horizon=n, free_time=False, step=self.dt, final_box=True, substeps=self.substeps
+                "full",
+                False,
+                horizon=n,
+                free_time=False,
+                step=self.dt,
+                final_box=True,
+                substeps=self.substeps,
+                model_params=self.model_params,
             )
         return self._problems[n], np.zeros(0)
 

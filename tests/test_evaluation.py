@@ -250,3 +250,47 @@ def test_evaluation_over_robots_simulates_each_episodes_robot_and_the_oracle_pla
         evaluate(task, [model], starts, progress=False, robots=heavy[:, :2])
     with pytest.raises(ValueError, match="must not be negative"):
         evaluate(task, [model], starts, progress=False, robots=-heavy)
+
+
+def test_full_horizon_oracle_with_model_params_equals_the_rebuilt_robot():
+    """``FullHorizonMPC(model_params=True)``: one set of solvers for every robot; ``set_robot`` plans as the MPC of
+    the rebuilt task does; an evaluation over robots re-targets it instead of rebuilding it per episode."""
+    from seagul_control.mpc import FullHorizonMPC
+
+    task = make_task("acrobot")
+    robot = task.parameters.high
+    x = np.array([np.pi - 0.3, 0.2, 0.1, -0.1])
+    opts = {"solver": "ipopt", "solver_options": {"ipopt.max_wall_time": 10.0}}
+    shared = FullHorizonMPC(task, model_params=True, warm_start=False, **opts)
+    shared.set_robot(robot)
+    u_shared, info = shared.act(x, 1.0)
+    u_rebuilt, _ = FullHorizonMPC(task.with_params(robot), warm_start=False, **opts).act(x, 1.0)
+    assert info.success
+    np.testing.assert_allclose(u_shared, u_rebuilt, rtol=1e-6, atol=1e-8)
+    shared.set_robot(None)
+    u_model, _ = shared.act(x, 1.0)
+    u_plain, _ = FullHorizonMPC(task, warm_start=False, **opts).act(x, 1.0)
+    np.testing.assert_allclose(u_model, u_plain, rtol=1e-6, atol=1e-8)
+    with pytest.raises(ValueError, match="set_robot needs FullHorizonMPC"):
+        FullHorizonMPC(task, **opts).set_robot(robot)
+
+
+@pytest.mark.slow
+def test_evaluation_over_robots_retargets_a_model_params_oracle_like_a_rebuilt_one():
+    """The evaluation's oracle with ``model_params`` (built once, re-targeted per episode) flies the episode of the
+    oracle rebuilt for the robot (about 2 minutes: 50 fixed-step solvers each)."""
+    task = make_task("acrobot")
+    robot = task.parameters.high
+    opts = {"solver": "ipopt", "solver_options": {"ipopt.max_wall_time": 10.0}}
+    options = tuple((k, v if not isinstance(v, dict) else tuple(v.items())) for k, v in opts.items())
+    spec = PolicySpec("full", "oracle", options=(*options, ("model_params", True)), knows_robot=True)
+    starts = start_grid(task, 2)[0][:1]
+    run = evaluate(task, [spec], starts, progress=False, robots=robot[None, :])[0]
+    ref = evaluate(
+        task,
+        [PolicySpec("full", "oracle", options=options, knows_robot=True)],
+        starts,
+        progress=False,
+        robots=robot[None, :],
+    )[0]
+    np.testing.assert_allclose(run.final_state, ref.final_state, rtol=1e-6, atol=1e-6)
