@@ -91,6 +91,8 @@ def test_validate_task_rejects_parametric_dynamics_that_disagree_with_the_model(
     renamed = dataclasses.replace(space, names=("m1", "m2", "l1", "lc2", "b1", "mass"))
     with pytest.raises(ValueError, match="not fields of the task's params"):
         validate_task(dataclasses.replace(task, parameters=renamed))
+    with pytest.raises(ValueError, match="params to be a dataclass instance"):
+        validate_task(dataclasses.replace(task, params={"m1": 1.0}))
     with pytest.raises(ValueError, match=r"must map \(x\[4\], u\[1\], theta\[6\]\)"):
         validate_task(dataclasses.replace(task, parameters=dataclasses.replace(space, dynamics=task.dynamics)))
 

@@ -19,6 +19,7 @@ Three things read it:
 
 from __future__ import annotations
 
+import dataclasses
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -134,6 +135,9 @@ class ParameterSpace:
             return [f"parameters.names must be a non-empty tuple of str, got {self.names!r}"]
         if len(set(self.names)) != len(self.names):
             out.append(f"parameters.names repeat a name: {list(self.names)}")
+        if not (dataclasses.is_dataclass(params) and not isinstance(params, type)):
+            out.append(f"parameters need the task's params to be a dataclass instance, got {type(params).__name__}")
+            return out
         missing = [n for n in self.names if not hasattr(params, n)]
         if missing:
             out.append(f"parameters.names {missing} are not fields of the task's params ({type(params).__name__})")
