@@ -220,11 +220,6 @@ class TrajectoryOptimizer:
         cfg = cfg.resolved(self.task)
         cfg.validate()  # again with the task's plan filled in (e.g. soft bounds with a default plan that has fatrop)
         self.config = cfg
-        if cfg.model_params and self.task.parameters is None:
-            raise ValueError(
-                f"{self.task.name}: model_params=True needs a task that declares which parameters vary "
-                "(Task.parameters)"
-            )
         self.horizon = self.task.num_steps if cfg.horizon is None else int(cfg.horizon)
         self._transcriptions: dict[str, Transcription] = {}
         self._theta_jacobians: dict[tuple[int, int], ca.Function] = {}
@@ -329,7 +324,7 @@ class TrajectoryOptimizer:
                 )
             return None
         space = self.task.parameters
-        assert space is not None  # checked at construction
+        assert space is not None  # the first Transcription refused model_params without parameters
         return self.task.theta if theta is None else space.resolve(theta, self.task.theta, self.task.name)
 
     def solve(self, x_init: Any, tau: float | None = None, theta: Any = None) -> SolveResult:

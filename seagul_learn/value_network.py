@@ -65,21 +65,6 @@ CasadiForm: TypeAlias = Literal["scalar", "matrix"]
 """How a value function's CasADi graph is built: ``"scalar"`` (SX) or ``"matrix"`` (MX of dense products)."""
 
 
-def _value_and_grad(forward: _Forward, x: Any, tau: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """``(V, dV/dx, dV/dtau)`` of ``forward`` for a batch (or a single ``x`` of shape ``(nx,)``), as NumPy."""
-    x_arr = np.asarray(x, dtype=np.float64)
-    single = x_arr.ndim == 1
-    x_arr = np.atleast_2d(x_arr)
-    tau_arr = np.broadcast_to(np.asarray(tau, dtype=np.float64).reshape(-1), (x_arr.shape[0],))
-    xt = torch.tensor(x_arr, dtype=DTYPE, requires_grad=True)
-    tt = torch.tensor(np.array(tau_arr), dtype=DTYPE, requires_grad=True)
-    with torch.enable_grad():
-        v = forward(xt, tt)
-        gx, gt = torch.autograd.grad(v.sum(), [xt, tt])
-    out = (v.detach().numpy(), gx.numpy(), gt.numpy())
-    return (out[0][0], out[1][0], out[2][0]) if single else out
-
-
 def _predict(forward: _Forward, x: Any, tau: Any, theta: Any = None) -> np.ndarray:
     """NumPy values of ``forward`` for a batch (``theta``: None, one vector or one row per state)."""
     x_arr = np.atleast_2d(np.asarray(x, dtype=np.float64))
@@ -89,25 +74,39 @@ def _predict(forward: _Forward, x: Any, tau: Any, theta: Any = None) -> np.ndarr
         return forward(torch.tensor(x_arr), torch.tensor(np.array(tau_arr)), *extra).numpy()
 
 
-def _value_and_grads(
-    forward: _Forward, x: Any, tau: Any, theta: Any
-) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """``(V, dV/dx, dV/dtau, dV/dtheta)`` of ``forward`` for a batch (or a single ``x``), as NumPy."""
+def _derivatives(forward: _Forward, x: Any, tau: Any, theta: Any = None) -> tuple[np.ndarray, ...]:
+    """``(V, dV/dx, dV/dtau)`` of ``forward`` for a batch (or a single ``x`` of shape ``(nx,)``), as NumPy; with
+    ``theta`` (one vector or one row per state) also ``dV/dtheta``."""
     x_arr = np.asarray(x, dtype=np.float64)
     single = x_arr.ndim == 1
     x_arr = np.atleast_2d(x_arr)
     n = x_arr.shape[0]
     tau_arr = np.broadcast_to(np.asarray(tau, dtype=np.float64).reshape(-1), (n,))
-    th_arr = np.asarray(theta, dtype=np.float64)
-    th_arr = np.broadcast_to(th_arr, (n, th_arr.shape[-1])) if th_arr.ndim <= 1 else th_arr
-    xt = torch.tensor(x_arr, dtype=DTYPE, requires_grad=True)
-    tt = torch.tensor(np.array(tau_arr), dtype=DTYPE, requires_grad=True)
-    pt = torch.tensor(np.array(th_arr), dtype=DTYPE, requires_grad=True)
+    inputs = [torch.tensor(x_arr, dtype=DTYPE, requires_grad=True)]
+    inputs.append(torch.tensor(np.array(tau_arr), dtype=DTYPE, requires_grad=True))
+    if theta is not None:
+        th_arr = np.asarray(theta, dtype=np.float64)
+        th_arr = np.broadcast_to(th_arr, (n, th_arr.shape[-1])) if th_arr.ndim <= 1 else th_arr
+        inputs.append(torch.tensor(np.array(th_arr), dtype=DTYPE, requires_grad=True))
     with torch.enable_grad():
-        v = forward(xt, tt, pt)
-        gx, gt, gp = torch.autograd.grad(v.sum(), [xt, tt, pt])
-    out = (v.detach().numpy(), gx.numpy(), gt.numpy(), gp.numpy())
-    return (out[0][0], out[1][0], out[2][0], out[3][0]) if single else out
+        v = forward(*inputs)
+        grads = torch.autograd.grad(v.sum(), inputs)
+    out = (v.detach().numpy(), *(g.numpy() for g in grads))
+    return tuple(o[0] for o in out) if single else out
+
+
+def _value_and_grad(forward: _Forward, x: Any, tau: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """``(V, dV/dx, dV/dtau)`` of ``forward`` for a batch (or a single ``x`` of shape ``(nx,)``), as NumPy."""
+    v, gx, gt = _derivatives(forward, x, tau)
+    return v, gx, gt
+
+
+def _value_and_grads(model: Any, x: Any, tau: Any, theta: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """``(V, dV/dx, dV/dtau, dV/dtheta)`` of a network (ensemble) over robots at ``theta`` (None: its condition)."""
+    if not model.n_params:
+        raise ValueError("value_and_grads needs a network over physical parameters (n_params > 0)")
+    v, gx, gt, gp = _derivatives(model.forward, x, tau, model.theta if theta is None else theta)
+    return v, gx, gt, gp
 
 
 class ValueNetwork(nn.Module):
@@ -239,9 +238,7 @@ class ValueNetwork(nn.Module):
         self, x: Any, tau: Any, theta: Any = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """NumPy helper: ``(Vhat, dVhat/dx, dVhat/dtau, dVhat/dtheta)`` at ``theta`` (default the condition)."""
-        if not self.n_params:
-            raise ValueError("value_and_grads needs a network over physical parameters (n_params > 0)")
-        return _value_and_grads(self.forward, x, tau, self.theta if theta is None else theta)
+        return _value_and_grads(self, x, tau, theta)
 
     def predict(self, x: Any, tau: Any, theta: Any = None) -> np.ndarray:
         """NumPy values ``Vhat(x, tau)`` (``Vhat(x, tau, theta)``) for a batch."""
@@ -504,9 +501,7 @@ class ValueEnsemble(nn.Module):
         self, x: Any, tau: Any, theta: Any = None
     ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
         """``(mean, dmean/dx, dmean/dtau, dmean/dtheta)``, as :meth:`ValueNetwork.value_and_grads`."""
-        if not self.n_params:
-            raise ValueError("value_and_grads needs a network over physical parameters (n_params > 0)")
-        return _value_and_grads(self.forward, x, tau, self.theta if theta is None else theta)
+        return _value_and_grads(self, x, tau, theta)
 
     # ----------------------------------------------------------------- casadi
     def casadi_parameters(self) -> np.ndarray:

@@ -225,6 +225,16 @@ def test_mjcf_recipe() -> None:
     np.testing.assert_array_equal(model.jnt_axis, [[0, -1, 0], [0, -1, 0]])
 
 
+def _mujoco_mass_and_bias(m: mujoco.MjModel, d: mujoco.MjData, x: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """MuJoCo's ``M(q)`` and bias forces at the state ``x`` (Coriolis + gravity; its passive damping is -b dq)."""
+    d.qpos[:] = x[:2]
+    d.qvel[:] = x[2:]
+    mujoco.mj_forward(m, d)
+    M = np.zeros((2, 2))
+    mujoco.mj_fullM(m, d, M)
+    return M, d.qfrc_bias - d.qfrc_passive
+
+
 def test_mujoco_mass_matrix_and_bias_equal_analytic() -> None:
     task = make_task("acrobot")
     ref = LagrangianAcrobot(task.params)
@@ -233,12 +243,7 @@ def test_mujoco_mass_matrix_and_bias_equal_analytic() -> None:
     rng = np.random.default_rng(2)
     worst_M = worst_b = 0.0
     for x in _random_states(rng, 40):
-        d.qpos[:] = x[:2]
-        d.qvel[:] = x[2:]
-        mujoco.mj_forward(m, d)
-        M = np.zeros((2, 2))
-        mujoco.mj_fullM(m, d, M)
-        bias = d.qfrc_bias - d.qfrc_passive  # Coriolis + gravity, and MuJoCo's passive damping is -b dq
+        M, bias = _mujoco_mass_and_bias(m, d, x)
         M_task = np.asarray(task.extras["mass_matrix"](x[:2]))
         bias_task = np.asarray(task.extras["bias"](x[:2], x[2:])).ravel()
         worst_M = max(worst_M, np.abs(M - M_task).max())
@@ -364,12 +369,7 @@ def test_mujoco_model_rebuilt_with_other_parameters_equals_the_analytic_model() 
     assert env.params == pytest.approx(ROBOT)
     rng = np.random.default_rng(5)
     for x in _random_states(rng, 20):
-        d.qpos[:] = x[:2]
-        d.qvel[:] = x[2:]
-        mujoco.mj_forward(m, d)
-        M = np.zeros((2, 2))
-        mujoco.mj_fullM(m, d, M)
-        bias = d.qfrc_bias - d.qfrc_passive
+        M, bias = _mujoco_mass_and_bias(m, d, x)
         np.testing.assert_allclose(M, ref.mass_matrix(x[:2]), atol=1e-9)
         np.testing.assert_allclose(bias, ref.bias(x[:2], x[2:]), atol=1e-9)
         np.testing.assert_allclose(M, np.asarray(robot.extras["mass_matrix"](x[:2])), atol=1e-9)

@@ -88,10 +88,8 @@ def step_function(task: Task, dt: float, max_substep: float | None = None, param
     if not params:
         sim = task.simulator(dt, max_substep)
         return ca.Function(f"{task.name}_env_step", [x, u], [sim(x, u), task.stage_cost(x, u)], ["x", "u"], ["xn", "l"])
-    max_substep = task.max_sim_substep if max_substep is None else max_substep
-    substeps = max(1, int(np.ceil(dt / max_substep - 1e-9)))  # as Task.simulator
     theta = ca.SX.sym("theta", task.parameters.size if task.parameters is not None else 0)
-    x_next = task.rk4_step_params(substeps)(x, u, dt, theta)
+    x_next = task.rk4_step_params(task.simulator_substeps(dt, max_substep))(x, u, dt, theta)
     return ca.Function(
         f"{task.name}_env_step_theta", [x, u, theta], [x_next, task.stage_cost(x, u)], ["x", "u", "theta"], ["xn", "l"]
     )

@@ -166,9 +166,12 @@ class Task:
 
     def simulator(self, dt: float, max_substep: float | None = None) -> ca.Function:
         """Numeric one-control-period map ``(x, u) -> x(t + dt)`` (zero-order hold, RK4 substeps <= max_substep)."""
+        return _simulator(self, float(dt), self.simulator_substeps(dt, max_substep))
+
+    def simulator_substeps(self, dt: float, max_substep: float | None = None) -> int:
+        """RK4 substeps of :meth:`simulator` over ``dt``: ``ceil(dt / max_substep - 1e-9)``, at least 1."""
         max_substep = self.max_sim_substep if max_substep is None else max_substep
-        substeps = max(1, int(np.ceil(dt / max_substep - 1e-9)))
-        return _simulator(self, float(dt), substeps)
+        return max(1, int(np.ceil(dt / max_substep - 1e-9)))
 
     def stage_cost_value(self, x: np.ndarray, u: np.ndarray) -> float:
         """``l(x, u)`` as a float."""
