@@ -27,7 +27,13 @@ key                  shape / dtype   meaning
 ``sampler``          () str          who asked for the solve (``"pretrain"``, ``"uniform"``, ``"adversarial"``, ...)
 ``chain``            () int64        adversarial chain id (-1 for independent draws)
 ``step``             () int64        iterate number within the chain (0 for the chain's start)
+``theta``            (k,) float64    the robot's physical parameters (``task.parameters.names``; ``k = 0``: the
+                                     task's own robot, not an NLP parameter)
+``grad_theta``       (k,) float64    ``dV/dtheta`` (from the duals)
+``knot_grad_theta``  (m+1, k)        ``dV_k/dtheta`` per knot
 ===================  ==============  ===============================================================
+
+Records written before robots were NLP parameters have no ``theta*`` keys and read as ``k = 0``.
 
 Writes are atomic (:func:`seagul_control._io.atomic_write_bytes`): a record goes to a hidden temp file in
 ``records/``, is flushed and fsynced, then renamed over its final name (``os.replace``) and the directory is
@@ -43,7 +49,7 @@ import json
 import os
 import re
 from collections.abc import Iterable, Sequence
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -57,6 +63,8 @@ from seagul_learn.results import SolveResult
 FORMAT_TAG = "seagul-dataset"
 FORMAT_VERSION = 1
 _RECORD_RE = re.compile(r"^solve-(\d{6,})\.npz$")
+_OPTIONAL_KEYS = ("theta", "grad_theta", "knot_grad_theta")
+"""Record keys that files written before robots were NLP parameters do not have."""
 
 
 class DatasetError(ValueError):
@@ -84,10 +92,30 @@ class SolveRecord:
     sampler: str
     chain: int = -1
     step: int = 0
+    theta: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """The robot's parameters of the solve, ``(k,)``; ``k = 0`` when the robot was the task's own (no NLP
+    parameters)."""
+    grad_theta: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    """``dV/dtheta`` at the start, ``(k,)``."""
+    knot_grad_theta: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)))
+    """``dV_k/dtheta`` per knot, ``(m + 1, k)`` (``(0, 0)`` when ``k = 0``)."""
+
+    @property
+    def n_params(self) -> int:
+        """``k``: the number of physical parameters the solve took as NLP parameters (0: none)."""
+        return int(self.theta.size)
 
     @classmethod
     def from_result(cls, result: SolveResult, index: int, sampler: str, chain: int = -1, step: int = 0) -> SolveRecord:
         """Wrap a :class:`SolveResult` with its bookkeeping."""
+        k = 0 if result.theta is None else int(np.asarray(result.theta).size)
+        m1 = int(np.asarray(result.states).shape[0])
+
+        def params(value: np.ndarray | None, shape: tuple[int, ...]) -> np.ndarray:
+            if value is None:
+                return np.full(shape, np.nan) if k else np.zeros(shape)
+            return np.asarray(value, dtype=np.float64).reshape(shape).copy()
+
         return cls(
             index=int(index),
             x_init=np.asarray(result.x_init, dtype=np.float64).copy(),
@@ -106,6 +134,9 @@ class SolveRecord:
             sampler=str(sampler),
             chain=int(chain),
             step=int(step),
+            theta=params(result.theta, (k,)),
+            grad_theta=params(result.grad_theta, (k,)),
+            knot_grad_theta=params(result.knot_grad_theta, (m1, k) if k else (0, 0)),
         )
 
     def to_arrays(self) -> dict[str, np.ndarray]:
@@ -128,6 +159,8 @@ class SolveRecord:
         """Inverse of :meth:`to_arrays` (``data`` maps key -> array, e.g. an open ``NpzFile``)."""
         kwargs: dict[str, Any] = {}
         for f in fields(cls):
+            if f.name in _OPTIONAL_KEYS and f.name not in data:
+                continue  # a record from before robots were NLP parameters: the task's own robot
             arr = data[f.name]
             if f.name in ("status", "sampler"):
                 kwargs[f.name] = str(arr[()])
@@ -141,9 +174,15 @@ class SolveRecord:
                 kwargs[f.name] = np.array(arr, dtype=np.float64)
         return cls(**kwargs)
 
-    def same_request(self, x_init: np.ndarray, tau: float) -> bool:
-        """True if this record answers a solve from exactly ``(x_init, tau)`` (bitwise: plans are deterministic)."""
-        return bool(np.array_equal(self.x_init, np.asarray(x_init, dtype=np.float64)) and self.tau == float(tau))
+    def same_request(self, x_init: np.ndarray, tau: float, theta: np.ndarray | None = None) -> bool:
+        """True if this record answers a solve from exactly ``(x_init, tau)`` for the robot ``theta`` (None: the
+        task's own, no NLP parameters); bitwise, as plans are deterministic."""
+        want = np.zeros(0) if theta is None else np.asarray(theta, dtype=np.float64).reshape(-1)
+        return bool(
+            np.array_equal(self.x_init, np.asarray(x_init, dtype=np.float64))
+            and self.tau == float(tau)
+            and np.array_equal(self.theta, want)
+        )
 
 
 class Dataset:
@@ -262,6 +301,15 @@ class TrainingArrays:
     """Index of the solve each sample came from, ``(n,)``."""
     knot: np.ndarray
     """Knot number within its solve (0 = the solve's start at its full ``tau``), ``(n,)``."""
+    theta: np.ndarray | None = None
+    """The robot of each sample, ``(n, k)``, when the solves took physical parameters (else None)."""
+    grad_theta: np.ndarray | None = None
+    """``dV/dtheta`` labels, ``(n, k)`` (with :attr:`theta`)."""
+
+    @property
+    def n_params(self) -> int:
+        """``k``: physical parameters per sample (0 without)."""
+        return 0 if self.theta is None else int(self.theta.shape[1])
 
     def __len__(self) -> int:
         return int(self.value.shape[0])
@@ -273,17 +321,65 @@ class TrainingArrays:
     def select(self, mask: np.ndarray) -> TrainingArrays:
         """The samples where ``mask`` (bool or index array) selects."""
         return TrainingArrays(
-            self.x[mask], self.tau[mask], self.value[mask], self.grad_x[mask], self.solve_index[mask], self.knot[mask]
+            self.x[mask],
+            self.tau[mask],
+            self.value[mask],
+            self.grad_x[mask],
+            self.solve_index[mask],
+            self.knot[mask],
+            None if self.theta is None else self.theta[mask],
+            None if self.grad_theta is None else self.grad_theta[mask],
+        )
+
+    def concat(self, other: TrainingArrays) -> TrainingArrays:
+        """These samples followed by ``other``'s (both with physical parameters, or neither; an empty side adopts
+        the other's)."""
+        if len(self) == 0 and self.n_params != other.n_params:
+            return other
+        if len(other) == 0 and self.n_params != other.n_params:
+            return self
+        if (self.theta is None) != (other.theta is None) or self.n_params != other.n_params:
+            raise ValueError(
+                f"cannot join samples over {self.n_params} physical parameters with samples over {other.n_params}"
+            )
+
+        def cat(a: np.ndarray | None, b: np.ndarray | None) -> np.ndarray | None:
+            return None if a is None or b is None else np.concatenate([a, b])
+
+        return TrainingArrays(
+            np.concatenate([self.x, other.x]),
+            np.concatenate([self.tau, other.tau]),
+            np.concatenate([self.value, other.value]),
+            np.concatenate([self.grad_x, other.grad_x]),
+            np.concatenate([self.solve_index, other.solve_index]),
+            np.concatenate([self.knot, other.knot]),
+            cat(self.theta, other.theta),
+            cat(self.grad_theta, other.grad_theta),
         )
 
 
 def training_arrays(records: Iterable[SolveRecord], nx: int | None = None) -> TrainingArrays:
-    """Every knot of every *successful* record as training samples (failed solves are never data)."""
+    """Every knot of every *successful* record as training samples (failed solves are never data).
+
+    Records over robots (``theta`` of ``k > 0`` parameters) give each knot its solve's ``theta`` and the per-knot
+    ``dV_k/dtheta`` labels; mixing records with and without robots (or with other ``k``) is an error.
+
+    Raises:
+        ValueError: the records disagree on their number of physical parameters.
+    """
     good = [r for r in records if r.success and np.isfinite(r.value) and np.all(np.isfinite(r.cost_to_go))]
     if not good:
         n = nx if nx is not None else 0
         empty = np.zeros(0)
         return TrainingArrays(np.zeros((0, n)), empty, empty, np.zeros((0, n)), empty.astype(np.int64), empty)
+    ks = sorted({r.n_params for r in good})
+    if len(ks) > 1:
+        raise ValueError(f"records over different numbers of physical parameters {ks} cannot be one training set")
+    k = ks[0]
+    theta = grad_theta = None
+    if k:
+        theta = np.concatenate([np.repeat(r.theta[None, :], r.cost_to_go.shape[0], axis=0) for r in good])
+        grad_theta = np.concatenate([r.knot_grad_theta for r in good])
     return TrainingArrays(
         x=np.concatenate([r.states for r in good]),
         tau=np.concatenate([r.time_to_go for r in good]),
@@ -291,6 +387,8 @@ def training_arrays(records: Iterable[SolveRecord], nx: int | None = None) -> Tr
         grad_x=np.concatenate([r.knot_grads for r in good]),
         solve_index=np.concatenate([np.full(r.cost_to_go.shape[0], r.index, dtype=np.int64) for r in good]),
         knot=np.concatenate([np.arange(r.cost_to_go.shape[0]) for r in good]),
+        theta=theta,
+        grad_theta=grad_theta,
     )
 
 

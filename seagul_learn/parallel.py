@@ -80,14 +80,22 @@ def _optimizer(task: Task, frozen: Frozen, fingerprint: str | None = None) -> An
 
 
 def _solve_chunk(
-    task: Task | str, frozen: Frozen, starts: np.ndarray, taus: np.ndarray, fingerprint: str | None = None
+    task: Task | str,
+    frozen: Frozen,
+    starts: np.ndarray,
+    taus: np.ndarray,
+    fingerprint: str | None = None,
+    thetas: np.ndarray | None = None,
 ) -> list[SolveResult]:
     """Solve one chunk in a worker. ``solve_many`` sends the Task object and its fingerprint; a registered name
-    (resolved here, with ``make_task``) is still accepted from direct callers such as the benchmarks."""
+    (resolved here, with ``make_task``) is still accepted from direct callers such as the benchmarks. ``thetas``:
+    one robot per start (an optimizer built with ``model_params=True``)."""
     if isinstance(task, str):
         task = make_task(task)
     opt = _optimizer(task, frozen, fingerprint)
-    return [opt.solve(x, float(t)) for x, t in zip(starts, taus, strict=True)]
+    if thetas is None:
+        return [opt.solve(x, float(t)) for x, t in zip(starts, taus, strict=True)]
+    return [opt.solve(x, float(t), theta=th) for x, t, th in zip(starts, taus, thetas, strict=True)]
 
 
 def _worker_init() -> None:
@@ -131,6 +139,19 @@ def _check_inputs(
     return arr, tau_arr
 
 
+def _check_thetas(task: Task, thetas: np.ndarray, n: int) -> np.ndarray:
+    """``thetas`` as an ``(n, k)`` float array of finite robots, or a ValueError naming the problem."""
+    space = task.parameters
+    if space is None:
+        raise ValueError(f"{task.name}: thetas given, but the task declares no physical parameters (Task.parameters)")
+    arr = np.asarray(thetas, dtype=np.float64)
+    if arr.ndim != 2 or arr.shape != (n, space.size):
+        raise ValueError(f"{task.name}: thetas must have shape ({n}, {space.size}) ({space.names}), got {arr.shape}")
+    for row in arr:
+        space.check(row, task.name)
+    return arr
+
+
 def _progress(total: int, enabled: bool, desc: str) -> Any:
     from tqdm.auto import tqdm
 
@@ -146,6 +167,7 @@ def solve_many(
     backend: str = "local",
     progress: bool = True,
     solver_options: dict | None = None,
+    thetas: np.ndarray | None = None,
 ) -> list[SolveResult]:
     """Solve paper Eq. 1 from every row of ``starts`` and return the results in input order.
 
@@ -163,6 +185,9 @@ def solve_many(
         progress: show a tqdm progress bar.
         solver_options: :class:`~seagul_learn.trajopt.TrajOptConfig` fields (e.g. ``{"solver": "ipopt"}``); the
             key ``"ray_address"`` is read by the Ray backend and not passed on.
+        thetas: ``(n, k)`` robots, one per start (``task.parameters.names`` order): every solve takes its robot as
+            NLP parameters of one optimizer per worker (``model_params=True`` is implied) and returns
+            ``grad_theta`` and ``knot_grad_theta``. None: the task's own robot.
 
     Returns:
         One :class:`SolveResult` per start; a failed solve has ``success=False`` (never raises for a hard start).
@@ -177,6 +202,9 @@ def solve_many(
     options = dict(solver_options or {})
     tail = options.get("horizon") is not None
     arr, tau_arr = _check_inputs(task, starts, taus, tail=tail)
+    theta_arr = None if thetas is None else _check_thetas(task, thetas, arr.shape[0])
+    if theta_arr is not None:
+        options["model_params"] = True
     ray_address = options.pop("ray_address", None)
     frozen = _freeze(options)
     n = arr.shape[0]
@@ -191,16 +219,16 @@ def solve_many(
     if n == 0:
         return []
     if backend == "ray":
-        return _solve_ray(task, fingerprint, frozen, arr, tau_arr, workers, progress, ray_address)
+        return _solve_ray(task, fingerprint, frozen, arr, tau_arr, workers, progress, ray_address, theta_arr)
     if workers == 1:
         opt = _optimizer(task, frozen, fingerprint)
         out: list[SolveResult] = []
         with _progress(n, progress, f"{task.name} solves") as bar:
-            for x, t in zip(arr, tau_arr, strict=True):
-                out.append(opt.solve(x, float(t)))
+            for i, (x, t) in enumerate(zip(arr, tau_arr, strict=True)):
+                out.append(opt.solve(x, float(t), theta=None if theta_arr is None else theta_arr[i]))
                 bar.update(1)
         return out
-    return _solve_local(task, fingerprint, frozen, arr, tau_arr, workers, progress)
+    return _solve_local(task, fingerprint, frozen, arr, tau_arr, workers, progress, theta_arr)
 
 
 _POOL: dict[str, Any] = {}
@@ -235,6 +263,7 @@ def _solve_local(
     taus: np.ndarray,
     workers: int,
     progress: bool,
+    thetas: np.ndarray | None = None,
 ) -> list[SolveResult]:
     n = starts.shape[0]
     chunks = _chunks(n, workers, None)
@@ -249,7 +278,8 @@ def _solve_local(
         def submit_more() -> None:
             while queue and len(pending) < limit:
                 idx = queue.pop(0)
-                fut = pool.submit(_solve_chunk, task, frozen, starts[idx], taus[idx], fingerprint)
+                rows = None if thetas is None else thetas[idx]
+                fut = pool.submit(_solve_chunk, task, frozen, starts[idx], taus[idx], fingerprint, rows)
                 pending[fut] = idx
 
         submit_more()
@@ -352,6 +382,7 @@ def _solve_ray(
     workers: int,
     progress: bool,
     address: str | None,
+    thetas: np.ndarray | None = None,
 ) -> list[SolveResult]:
     try:
         import ray
@@ -378,7 +409,8 @@ def _solve_ray(
     def submit(actor_i: int) -> None:
         if queue:
             idx = queue.pop(0)
-            ref = actors[actor_i].solve_chunk.remote(task_ref, frozen, starts[idx], taus[idx], fingerprint)
+            rows = None if thetas is None else thetas[idx]
+            ref = actors[actor_i].solve_chunk.remote(task_ref, frozen, starts[idx], taus[idx], fingerprint, rows)
             in_flight[ref] = (actor_i, idx)
 
     finished = False
@@ -427,8 +459,9 @@ def _ray_actor_class(ray: Any) -> Any:
                 starts: np.ndarray,
                 taus: np.ndarray,
                 fingerprint: str | None = None,
+                thetas: np.ndarray | None = None,
             ) -> list[SolveResult]:
-                return _solve_chunk(task, frozen, starts, taus, fingerprint)
+                return _solve_chunk(task, frozen, starts, taus, fingerprint, thetas)
 
             def pid(self) -> int:
                 return os.getpid()

@@ -21,6 +21,13 @@ the box, so iterates do not pile up on the boundary). A chain stops after ``max_
 step is below ``eps`` (max-norm, in box widths), at its first failed solve (its earlier iterates are kept), and,
 with ``stop_on_decrease``, when an iterate's loss fell below its predecessor's (the step overshot a peak).
 
+**Over robots** (``TrainConfig.model_params``, docs/spec.md §14). The pool then also holds one robot ``theta`` per
+start, drawn uniformly from the task's box Theta (after the starts, from the same stream: the starts equal the
+nominal run's). The uniform baseline solves each start for its robot: uniform over ``X0 x Theta``. The adversarial
+ascent moves ``theta`` as more box-normalised coordinates (Theta's widths), with the loss gradient
+``(V - Vhat) (dV/dtheta - dVhat/dtheta)`` from the dual ``SolveResult.grad_theta``, and projects onto Theta like x
+onto X0: the paper's "adversarial samples with respect to environment parameters".
+
 **Improvements behind options** (for the benchmark): ``projection="reflect"``; ``uniform_fraction`` mixes a share of
 each round's solves as plain uniform draws from the same pool (the knots of those solves cover the rest of the
 function); short chains (``max_steps=2``: every chain is a uniform start plus one ascent iterate, "one or two
@@ -53,18 +60,33 @@ class StartPool:
     """Order in which a sampler consumes the pool (identity for uniform, a permutation for adversarial)."""
     position: int = 0
     """How many starts have been consumed."""
+    thetas: np.ndarray | None = None
+    """One robot per start, ``(n, k)`` (pools over robots), else None."""
 
     @classmethod
-    def uniform(cls, task: Task, n: int, rng: np.random.Generator, uniform_tau: bool = False) -> StartPool:
-        """``n`` uniform draws from X0 (and from T0 if ``uniform_tau``, else the nominal ``tau``)."""
+    def uniform(
+        cls, task: Task, n: int, rng: np.random.Generator, uniform_tau: bool = False, model_params: bool = False
+    ) -> StartPool:
+        """``n`` uniform draws from X0 (and from T0 if ``uniform_tau``, else the nominal ``tau``); with
+        ``model_params`` also one robot per start, uniform over the task's box Theta (drawn after the starts, so the
+        starts are those of the pool without robots)."""
         starts = task.sample_x0(rng, n)
         lo, hi = task.tau_range
         taus = rng.uniform(lo, hi, size=n) if uniform_tau and hi > lo else np.full(n, task.tau_nominal)
-        return cls(starts, taus, np.arange(n))
+        thetas = None
+        if model_params:
+            if task.parameters is None:
+                raise ValueError(f"{task.name} declares no physical parameters (Task.parameters) to draw robots from")
+            thetas = task.parameters.sample(rng, n).reshape(n, task.parameters.size)
+        return cls(starts, taus, np.arange(n), 0, thetas)
 
     def shuffled(self, rng: np.random.Generator) -> StartPool:
         """The same starts, consumed in a random order (a random subset for whoever takes fewer than all)."""
-        return StartPool(self.starts, self.taus, rng.permutation(self.starts.shape[0]), 0)
+        return StartPool(self.starts, self.taus, rng.permutation(self.starts.shape[0]), 0, self.thetas)
+
+    def thetas_of(self, ids: np.ndarray) -> np.ndarray | None:
+        """The robots of the starts ``ids`` (from :meth:`take`), or None for a pool without robots."""
+        return None if self.thetas is None else self.thetas[np.asarray(ids, dtype=np.int64)].copy()
 
     def take(self, n: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The next ``n`` starts, their taus and their pool ids."""
@@ -97,9 +119,9 @@ class UniformSampler:
         self.pool = pool
 
     def sample(self, num_solves: int, network: ValueModel, runner: SolveRunner) -> list[SolveRecord]:
-        """Exactly ``num_solves`` solves (failures included)."""
-        starts, taus, _ = self.pool.take(num_solves)
-        return runner.solve(starts, taus, self.name)
+        """Exactly ``num_solves`` solves (failures included), each for its start's robot in a pool over robots."""
+        starts, taus, ids = self.pool.take(num_solves)
+        return runner.solve(starts, taus, self.name, thetas=self.pool.thetas_of(ids))
 
 
 @dataclass(frozen=True)
@@ -120,6 +142,9 @@ class AdversarialOptions:
     """Share of each round's solves spent on plain uniform draws (0 = pure Alg. 1)."""
     ascend_tau: bool = True
     """Also ascend in ``tau`` when T0 is an interval."""
+    ascend_theta: bool = True
+    """In a pool over robots, also ascend in the robot's parameters inside Theta (False: each chain keeps its
+    start's robot)."""
     adam_betas: tuple[float, float] = field(default=(0.9, 0.999))
     """Adam's moment decay rates (``optimizer="adam"``)."""
     stop_on_decrease: bool = False
@@ -144,7 +169,7 @@ class AdversarialOptions:
 class _Chain:
     chain_id: int
     u: np.ndarray
-    """Box-normalised free coordinates (x, then tau if it ascends)."""
+    """Box-normalised free coordinates (x, then tau if it ascends, then theta in a pool over robots)."""
     step: int = 0
     last_loss: float = -np.inf
     adam_m: np.ndarray | None = None
@@ -162,22 +187,41 @@ class AdversarialSampler:
         self.options = options or AdversarialOptions()
         lo, hi = task.tau_range
         self.ascend_tau = self.options.ascend_tau and hi > lo
+        self.robots = pool.thetas is not None
+        """The pool holds one robot per start (a run over robots): every solve is for its chain's robot."""
+        self.ascend_theta = self.robots and self.options.ascend_theta
         low = np.append(task.x0_low, lo) if self.ascend_tau else task.x0_low.copy()
         high = np.append(task.x0_high, hi) if self.ascend_tau else task.x0_high.copy()
+        if self.ascend_theta:
+            assert task.parameters is not None  # a pool over robots was drawn from them
+            low, high = np.append(low, task.parameters.low), np.append(high, task.parameters.high)
         self._low, self._width = low, high - low
+        self._n_theta = task.parameters.size if self.ascend_theta and task.parameters is not None else 0
         self._free = self._width > 0
         """Coordinates that may move (zero-width X0 coordinates are fixed)."""
 
     # ------------------------------------------------------------ coordinates
-    def _to_u(self, x: np.ndarray, tau: float) -> np.ndarray:
+    def _to_u(self, x: np.ndarray, tau: float, theta: np.ndarray | None = None) -> np.ndarray:
         z = np.append(x, tau) if self.ascend_tau else np.asarray(x, dtype=np.float64)
+        if self.ascend_theta:
+            assert theta is not None  # every start of a pool over robots has one
+            z = np.append(z, theta)
         return np.where(self._free, (z - self._low) / np.where(self._free, self._width, 1.0), 0.0)
 
-    def _from_u(self, u: np.ndarray, x_template: np.ndarray, tau: float) -> tuple[np.ndarray, float]:
-        z = np.where(self._free, self._low + u * self._width, np.append(x_template, tau)[: u.size])
-        if self.ascend_tau:
-            return z[:-1], float(z[-1])
-        return z, float(tau)
+    def _from_u(
+        self, u: np.ndarray, x_template: np.ndarray, tau: float, theta_template: np.ndarray | None = None
+    ) -> tuple[np.ndarray, float, np.ndarray | None]:
+        """``(x, tau, theta)`` of ``u``; fixed coordinates keep the template's values."""
+        template = np.append(x_template, tau) if self.ascend_tau else np.asarray(x_template, dtype=np.float64)
+        if self.ascend_theta:
+            assert theta_template is not None
+            template = np.append(template, theta_template)
+        z = np.where(self._free, self._low + u * self._width, template)
+        nx = np.asarray(x_template).size
+        x = z[:nx]
+        tau_new = float(z[nx]) if self.ascend_tau else float(tau)
+        theta = z[z.size - self._n_theta :] if self.ascend_theta else theta_template
+        return x, tau_new, None if theta is None else np.asarray(theta, dtype=np.float64).copy()
 
     def _project(self, u: np.ndarray) -> np.ndarray:
         if self.options.projection == "reflect":
@@ -187,12 +231,17 @@ class AdversarialSampler:
 
     # ------------------------------------------------------------------ steps
     def loss_gradient(self, record: SolveRecord, network: ValueModel) -> tuple[float, np.ndarray]:
-        """``1/2 (V - Vhat)^2`` at the record's start and its gradient in box-normalised coordinates."""
-        vhat, dvhat_dx, dvhat_dtau = network.value_and_grad(record.x_init, record.tau)
-        err = record.value - float(vhat)
-        g = err * (record.grad_x - dvhat_dx)
+        """``1/2 (V - Vhat)^2`` at the record's start (and robot) and its gradient in box-normalised coordinates."""
+        if self.robots:
+            vhat, dvhat_dx, dvhat_dtau, dvhat_dtheta = network.value_and_grads(record.x_init, record.tau, record.theta)
+        else:
+            vhat, dvhat_dx, dvhat_dtau = network.value_and_grad(record.x_init, record.tau)
+        err = record.value - float(np.asarray(vhat).reshape(-1)[0])
+        g = err * (record.grad_x - np.asarray(dvhat_dx).reshape(-1))
         if self.ascend_tau:
-            g = np.append(g, err * (record.grad_tau - float(dvhat_dtau)))
+            g = np.append(g, err * (record.grad_tau - float(np.asarray(dvhat_dtau).reshape(-1)[0])))
+        if self.ascend_theta:
+            g = np.append(g, err * (record.grad_theta - np.asarray(dvhat_dtheta).reshape(-1)))
         return 0.5 * err**2, np.where(self._free, g * self._width, 0.0)
 
     def ascent_step(self, chain: _Chain, g_u: np.ndarray) -> np.ndarray:
@@ -221,21 +270,31 @@ class AdversarialSampler:
         records: list[SolveRecord] = []
         n_uniform = round(opts.uniform_fraction * num_solves)
         if n_uniform:
-            starts, taus, _ = self.pool.take(n_uniform)
-            records += runner.solve(starts, taus, "uniform-mix")
+            starts, taus, ids = self.pool.take(n_uniform)
+            records += runner.solve(starts, taus, "uniform-mix", thetas=self.pool.thetas_of(ids))
         remaining = num_solves - n_uniform
         while remaining > 0:
             n_chains = math.ceil(remaining / opts.max_steps)
             starts, taus, ids = self.pool.take(n_chains)
-            chains = [_Chain(int(i), self._to_u(x, t)) for x, t, i in zip(starts, taus, ids, strict=True)]
-            xs = {c.chain_id: (x, float(t)) for c, x, t in zip(chains, starts, taus, strict=True)}
+            robots = self.pool.thetas_of(ids)
+            thetas = [None] * len(ids) if robots is None else list(robots)
+            chains = [
+                _Chain(int(i), self._to_u(x, t, th)) for x, t, th, i in zip(starts, taus, thetas, ids, strict=True)
+            ]
+            xs = {c.chain_id: (x, float(t), th) for c, x, t, th in zip(chains, starts, taus, thetas, strict=True)}
             active = chains
             while active and remaining > 0:
                 batch = active[:remaining]
                 batch_x = np.array([xs[c.chain_id][0] for c in batch])
                 batch_t = np.array([xs[c.chain_id][1] for c in batch])
+                batch_th = np.array([xs[c.chain_id][2] for c in batch]) if self.robots else None
                 solved = runner.solve(
-                    batch_x, batch_t, self.name, chains=[c.chain_id for c in batch], steps=[c.step for c in batch]
+                    batch_x,
+                    batch_t,
+                    self.name,
+                    chains=[c.chain_id for c in batch],
+                    steps=[c.step for c in batch],
+                    thetas=batch_th,
                 )
                 records += solved
                 remaining -= len(batch)
@@ -252,7 +311,7 @@ class AdversarialSampler:
                         continue
                     chain.u = u_new
                     chain.step += 1
-                    xs[chain.chain_id] = self._from_u(u_new, rec.x_init, rec.tau)
+                    xs[chain.chain_id] = self._from_u(u_new, rec.x_init, rec.tau, rec.theta if self.robots else None)
                     next_active.append(chain)
                 active = next_active
         return records

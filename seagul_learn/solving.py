@@ -2,9 +2,12 @@
 
 A *batch solver* is any callable ``(starts (n, nx), taus (n,)) -> list[SolveResult]`` in input order (the real
 one is :func:`trajopt_batch_solver`, built on ``seagul_learn.parallel.solve_many``; tests inject a toy with a known
-value function). :class:`SolveRunner` gives every requested solve the next deterministic index, reuses the record
-already on disk for that index (an interrupted run resumes without re-solving or duplicating), writes each new
-record atomically as soon as its chunk finishes, and counts solves and failures.
+value function). Runs over robots (``TrainConfig.model_params``) call it as ``(starts, taus, thetas (n, k))``: each
+solve for its own physical parameters, taken as NLP parameters by one built optimizer.
+
+:class:`SolveRunner` gives every requested solve the next deterministic index, reuses the record already on disk
+for that index (an interrupted run resumes without re-solving or duplicating), writes each new record atomically as
+soon as its chunk finishes, and counts solves and failures.
 """
 
 from __future__ import annotations
@@ -27,8 +30,10 @@ from seagul_envs.tasks.base import Task
 from seagul_learn.dataset import Dataset, DatasetError, SolveRecord
 from seagul_learn.results import SolveResult
 
-BatchSolver = Callable[[np.ndarray, np.ndarray], list[SolveResult]]
-"""``(starts (n, nx), taus (n,)) -> list[SolveResult]`` in input order; never raises for an infeasible start."""
+BatchSolver = Callable[..., list[SolveResult]]
+"""``(starts (n, nx), taus (n,)[, thetas (n, k)]) -> list[SolveResult]`` in input order; never raises for an
+infeasible start. ``thetas`` (the robots' physical parameters, ``task.parameters.names`` order) is passed only by
+runs over robots; a solver that takes it returns ``SolveResult.theta``/``grad_theta``/``knot_grad_theta``."""
 
 
 TAIL_SOLVER_DEFAULTS: dict[str, Any] = {
@@ -96,7 +101,9 @@ class TrajoptBatchSolver:
         self.progress = progress
         self.solver_options = dict(solver_options or {})
 
-    def __call__(self, starts: np.ndarray, taus: np.ndarray) -> list[SolveResult]:
+    def __call__(self, starts: np.ndarray, taus: np.ndarray, thetas: np.ndarray | None = None) -> list[SolveResult]:
+        """One result per start; with ``thetas`` (one robot per start) every solve takes its robot as NLP
+        parameters (``TrajOptConfig(model_params=True)``) and returns ``grad_theta`` and ``knot_grad_theta``."""
         from seagul_learn.parallel import solve_many  # the optimizer stack is only needed when actually solving
 
         starts = np.atleast_2d(np.asarray(starts, dtype=np.float64))
@@ -113,6 +120,7 @@ class TrajoptBatchSolver:
                 self.task,
                 starts[idx],
                 taus[idx],
+                thetas=None if thetas is None else np.asarray(thetas, dtype=np.float64)[idx],
                 workers=self.workers,
                 backend=self.backend,
                 progress=self.progress,
@@ -239,13 +247,20 @@ class SolveRunner:
         sampler: str,
         chains: Sequence[int] | None = None,
         steps: Sequence[int] | None = None,
+        thetas: np.ndarray | None = None,
     ) -> list[SolveRecord]:
-        """Solve (or reuse) one record per row of ``starts``, in order, with consecutive indices."""
+        """Solve (or reuse) one record per row of ``starts``, in order, with consecutive indices; ``thetas``
+        (``(n, k)``, runs over robots) gives each solve its robot and goes to the batch solver as its third
+        argument."""
         starts = np.atleast_2d(np.asarray(starts, dtype=np.float64))
         taus = np.asarray(taus, dtype=np.float64).reshape(-1)
         n = starts.shape[0]
         if taus.shape[0] != n:
             raise ValueError(f"need one tau per start: {n} starts, {taus.shape[0]} taus")
+        if thetas is not None:
+            thetas = np.asarray(thetas, dtype=np.float64)
+            if thetas.ndim != 2 or thetas.shape[0] != n:
+                raise ValueError(f"need one robot (a row of thetas) per start: {n} starts, thetas {thetas.shape}")
         chains = [-1] * n if chains is None else [int(c) for c in chains]
         steps = [0] * n if steps is None else [int(s) for s in steps]
         records: list[SolveRecord | None] = [None] * n
@@ -254,11 +269,14 @@ class SolveRunner:
             index = self.next_index + i
             if self.dataset is not None and index in self.dataset:
                 rec = self.dataset.read(index)
-                if not rec.same_request(starts[i], taus[i]) or rec.sampler != sampler:
+                theta = None if thetas is None else thetas[i]
+                if not rec.same_request(starts[i], taus[i], theta) or rec.sampler != sampler:
+                    planned = "" if theta is None else f" theta={theta.tolist()}"
+                    stored = "" if not rec.n_params else f" theta={rec.theta.tolist()}"
                     raise DatasetError(
                         f"record {index} in {str(self.dataset.path)!r} answers another request "
-                        f"({rec.sampler} x={rec.x_init.tolist()} tau={rec.tau}) than this run plans "
-                        f"({sampler} x={starts[i].tolist()} tau={taus[i]}): the dataset belongs to another "
+                        f"({rec.sampler} x={rec.x_init.tolist()} tau={rec.tau}{stored}) than this run plans "
+                        f"({sampler} x={starts[i].tolist()} tau={taus[i]}{planned}): the dataset belongs to another "
                         "configuration or seed"
                     )
                 records[i] = rec
@@ -267,7 +285,10 @@ class SolveRunner:
                 pending.append(i)
         for lo in range(0, len(pending), self.chunk_size):
             chunk = pending[lo : lo + self.chunk_size]
-            results = self.batch_solver(starts[chunk], taus[chunk])
+            if thetas is None:
+                results = self.batch_solver(starts[chunk], taus[chunk])
+            else:
+                results = self.batch_solver(starts[chunk], taus[chunk], thetas[chunk])
             if len(results) != len(chunk):
                 raise RuntimeError(f"batch solver returned {len(results)} results for {len(chunk)} starts")
             for i, result in zip(chunk, results, strict=True):
@@ -323,23 +344,26 @@ class CachedBatchSolver:
         self.hits = 0
         self.misses = 0
 
-    def _path(self, x: np.ndarray, tau: float) -> Path:
+    def _path(self, x: np.ndarray, tau: float, theta: np.ndarray | None = None) -> Path:
         digest = hashlib.sha256()
         digest.update(self.solver_name.encode())
         if self.task_fingerprint is not None:
             digest.update(b"\0task:" + self.task_fingerprint.encode())
         digest.update(np.ascontiguousarray(x, dtype=np.float64).tobytes())
         digest.update(np.float64(tau).tobytes())
+        if theta is not None:  # a solve for a robot given as NLP parameters (none: the keys of older caches)
+            digest.update(b"\0theta:" + np.ascontiguousarray(theta, dtype=np.float64).tobytes())
         key = digest.hexdigest()
         return self.cache_dir / key[:2] / f"{key}.npz"
 
-    def __call__(self, starts: np.ndarray, taus: np.ndarray) -> list[SolveResult]:
+    def __call__(self, starts: np.ndarray, taus: np.ndarray, thetas: np.ndarray | None = None) -> list[SolveResult]:
         starts = np.atleast_2d(np.asarray(starts, dtype=np.float64))
         taus = np.asarray(taus, dtype=np.float64).reshape(-1)
+        rows = None if thetas is None else np.asarray(thetas, dtype=np.float64)
         out: list[SolveResult | None] = [None] * starts.shape[0]
         missing: list[int] = []
         for i, (x, tau) in enumerate(zip(starts, taus, strict=True)):
-            path = self._path(x, tau)
+            path = self._path(x, tau, None if rows is None else rows[i])
             if path.is_file():
                 try:
                     out[i] = _load_result(path)
@@ -349,9 +373,12 @@ class CachedBatchSolver:
                     path.unlink(missing_ok=True)
             missing.append(i)
         if missing:
-            results = self.batch_solver(starts[missing], taus[missing])
+            if rows is None:
+                results = self.batch_solver(starts[missing], taus[missing])
+            else:
+                results = self.batch_solver(starts[missing], taus[missing], rows[missing])
             for i, result in zip(missing, results, strict=True):
-                _save_result(self._path(starts[i], taus[i]), result)
+                _save_result(self._path(starts[i], taus[i], None if rows is None else rows[i]), result)
                 out[i] = result
             self.misses += len(missing)
         return [r for r in out if r is not None]
@@ -362,6 +389,8 @@ def _save_result(path: Path, result: SolveResult) -> None:
     arrays: dict[str, Any] = {}
     for f in fields(SolveResult):
         value = getattr(result, f.name)
+        if value is None:
+            continue  # an optional field (theta, grad_theta, knot_grad_theta of a solve without robots)
         if f.name == "attempts":
             arrays[f.name] = np.array([str(a) for a in value], dtype=np.str_)
         elif isinstance(value, str):
@@ -392,4 +421,9 @@ def _load_result(path: Path) -> SolveResult:
             iterations=int(data["iterations"]),
             solve_time=float(data["solve_time"]),
             attempts=[str(a) for a in data["attempts"]],
+            **{
+                key: np.array(data[key], dtype=np.float64)
+                for key in ("theta", "grad_theta", "knot_grad_theta")
+                if key in data
+            },
         )

@@ -95,6 +95,7 @@ _STREAM_PRETRAIN_STARTS = 3
 _STREAM_PRETRAIN_BATCHES = 4
 _STREAM_ROUND_BATCHES = 5
 _STREAM_REFIT_BATCHES = 6
+_STREAM_VALIDATION_ROBOTS = 7
 _VALIDATION_SEED = VALIDATION_SEED  # one validation set for all training seeds (seagul_envs.tasks.profile)
 
 
@@ -208,6 +209,16 @@ class TrainConfig:
     """Budgets (solves) after whose round ``network_<solves>.pt`` is saved (success-per-solve curves from one run)."""
     uniform_tau: bool = False
     """Draw uniform starts' ``tau`` from T0 instead of using the nominal value."""
+    model_params: bool = False
+    """Learn ``V(x, tau, theta)`` over robots (docs/spec.md §14): every start gets a robot ``theta`` drawn uniformly
+    from the task's box Theta (``Task.parameters``), each solve takes it as NLP parameters (one built optimizer for
+    all robots, with ``dV/dtheta`` from the duals), the network takes ``theta`` as inputs and is conditioned on the
+    task's own values, and the Sobolev term covers x and theta. The uniform sampler is then uniform over
+    ``X0 x Theta`` and the adversarial one ascends in theta as well (``adv_ascend_theta``); the validation set draws
+    its robots from Theta with a fixed seed. Not yet with the closed-loop sampler."""
+    adv_ascend_theta: bool = True
+    """Adversarial, with ``model_params``: ascend in the robot's parameters too (False: each chain keeps its
+    start's robot)."""
     eval_every: int = 0
     """Also evaluate every this many training steps inside rounds (0 = after each round only)."""
     validate: bool = True
@@ -277,6 +288,17 @@ class TrainConfig:
                 "cl_keep_best needs sampler='closed-loop' and refit_steps=0 (it deploys a network a collector flew; "
                 f"got sampler={self.sampler!r}, refit_steps={self.refit_steps})"
             )
+        if self.model_params:
+            task = self.resolve_task()
+            if task.parameters is None:
+                raise ValueError(
+                    f"model_params needs a task with physical parameters (Task.parameters); {task.name} has none"
+                )
+            if self.sampler == "closed-loop":
+                raise ValueError(
+                    "model_params is not available with sampler='closed-loop' yet (its collecting MPC flies one "
+                    "robot); use 'uniform' or 'adversarial'"
+                )
         if not (self.value_cap >= 0 and math.isfinite(self.value_cap)):
             raise ValueError(f"value_cap must be a number >= 0 (0 = off), got {self.value_cap}")
         if not (self.grad_label_max >= 0 and math.isfinite(self.grad_label_max)):
@@ -318,6 +340,7 @@ class TrainConfig:
             projection=self.adv_projection,  # type: ignore[arg-type]
             uniform_fraction=self.adv_uniform_fraction,
             ascend_tau=self.adv_ascend_tau,
+            ascend_theta=self.adv_ascend_theta,
             stop_on_decrease=self.adv_stop_on_decrease,
         )
 
@@ -412,16 +435,22 @@ def validation_dataset(
     chunk_size: int = 1,
     progress: bool = False,
     spec: ValidationSpec | None = None,
+    model_params: bool = False,
 ) -> list[SolveRecord]:
     """Solve (or load from the cache) the task's validation set; returns one record per validation start.
 
-    The set is ``spec`` or the task's (``task.profile.validation_spec(task)``). The cache entry is keyed by
-    ``solver_name`` (give ``solver_key(options, task)`` for the real solver), the spec, ``tau`` and the task's
+    The set is ``spec`` or the task's (``task.profile.validation_spec(task)``); with ``model_params`` every start
+    is solved for a robot drawn uniformly from Theta (:func:`validation_robots`, a fixed seed). The cache entry is
+    keyed by ``solver_name`` (give ``solver_key(options, task)`` for the real solver), the spec, ``tau`` and the task's
     fingerprint, so a variant of a task (one parameter changed, same name) gets a validation set of its own.
     """
     spec = spec or task.profile.validation_spec(task)
     starts = spec.starts(task)
-    meta = {"solver": solver_name, "spec": asdict(spec), "tau": task.tau_nominal, "task": task.fingerprint()}
+    robots = validation_robots(task, starts.shape[0]) if model_params else None
+    meta: dict[str, Any] = {"solver": solver_name, "spec": asdict(spec), "tau": task.tau_nominal}
+    meta["task"] = task.fingerprint()
+    if robots is not None:
+        meta["robots"] = "uniform over Theta, seed " + str(_VALIDATION_SEED)
     key = hashlib.sha256(json.dumps(meta, sort_keys=True).encode()).hexdigest()[:16]
     root = Path(cache_dir) if cache_dir is not None else default_cache_dir()
     dataset = Dataset.open(root / f"validation-{task.name}-{key}", task.name, meta=meta)
@@ -430,16 +459,29 @@ def validation_dataset(
     bar = tqdm(total=starts.shape[0], initial=len(have), desc=f"validation set ({task.name})", disable=not progress)
     for lo in range(0, len(todo), chunk_size):
         chunk = todo[lo : lo + chunk_size]
-        results = batch_solver(starts[chunk], np.full(len(chunk), task.tau_nominal))
+        taus = np.full(len(chunk), task.tau_nominal)
+        if robots is None:
+            results = batch_solver(starts[chunk], taus)
+        else:
+            results = batch_solver(starts[chunk], taus, robots[chunk])
         for i, result in zip(chunk, results, strict=True):
             dataset.write(SolveRecord.from_result(result, i, "validation"), exist_ok=True)  # races are harmless
         bar.update(len(chunk))
     bar.close()
     records = [dataset.read(i) for i in range(starts.shape[0])]
     for i, rec in enumerate(records):
-        if not rec.same_request(starts[i], task.tau_nominal):
+        if not rec.same_request(starts[i], task.tau_nominal, None if robots is None else robots[i]):
             raise RuntimeError(f"validation cache {str(dataset.path)!r} holds another start at index {i}")
     return records
+
+
+def validation_robots(task: Task, n: int) -> np.ndarray:
+    """The robots of a validation set over robots: ``n`` uniform draws from Theta with the validation seed (the same
+    for every training seed, sampler and run)."""
+    if task.parameters is None:
+        raise ValueError(f"{task.name} declares no physical parameters (Task.parameters)")
+    rng = np.random.default_rng([_VALIDATION_SEED, _STREAM_VALIDATION_ROBOTS])
+    return task.parameters.sample(rng, n).reshape(n, task.parameters.size)
 
 
 # ---------------------------------------------------------------------------------------------- training pieces
@@ -477,6 +519,8 @@ def _as_tensors(
 ) -> dict[str, torch.Tensor]:
     value = arrays.value
     grad_ok = np.all(np.isfinite(arrays.grad_x), axis=1)
+    if arrays.grad_theta is not None:
+        grad_ok &= np.all(np.isfinite(arrays.grad_theta), axis=1)
     if value_cap > 0:
         # A clipped label keeps "expensive" without its scale; its gradient label no longer applies.
         grad_ok &= value <= value_cap
@@ -486,26 +530,43 @@ def _as_tensors(
             raise ValueError("grad_label_max needs the network whose standardisation measures the gradient labels")
         scale = _members(network)[0].in_std.numpy()[: arrays.x.shape[1]] / float(_members(network)[0].out_std)
         grad_ok &= np.linalg.norm(np.nan_to_num(arrays.grad_x) * scale, axis=1) <= grad_label_max
-    return {
+    out = {
         "x": torch.tensor(arrays.x, dtype=torch.float64),
         "tau": torch.tensor(arrays.tau, dtype=torch.float64),
         "value": torch.tensor(value, dtype=torch.float64),
         "grad_x": torch.tensor(np.nan_to_num(arrays.grad_x), dtype=torch.float64),
         "grad_ok": torch.tensor(grad_ok),
     }
+    if arrays.theta is not None and arrays.grad_theta is not None:
+        out["theta"] = torch.tensor(arrays.theta, dtype=torch.float64)
+        out["grad_theta"] = torch.tensor(np.nan_to_num(arrays.grad_theta), dtype=torch.float64)
+    return out
 
 
 def training_loss(network: ValueNetwork, batch: dict[str, torch.Tensor], sobolev_weight: float) -> torch.Tensor:
-    """The standardised value MSE plus ``sobolev_weight`` times the standardised gradient MSE (module docstring)."""
+    """The standardised value MSE plus ``sobolev_weight`` times the standardised gradient MSE (module docstring).
+
+    A network over robots takes the batch's ``theta``, and its gradient term averages over the ``nx`` state and the
+    ``k`` parameter coordinates alike (``dV/dtheta`` labels standardised by theta's input scale)."""
     target = (batch["value"] - network.out_mean) / network.out_std
+    theta = batch.get("theta") if network.n_params else None
     if sobolev_weight == 0.0:
-        return torch.mean((network.forward_standardized(batch["x"], batch["tau"]) - target) ** 2)
+        return torch.mean((network.forward_standardized(batch["x"], batch["tau"], theta) - target) ** 2)
     x = batch["x"].clone().requires_grad_(True)
-    pred = network.forward_standardized(x, batch["tau"])
-    (dy_dx,) = torch.autograd.grad(pred.sum(), x, create_graph=True)
-    scale = network.in_std[: network.nx]
-    # dy/dz = dy/dx * in_std; the label's dy/dz = dV/dx * in_std / out_std
-    diff = dy_dx * scale - batch["grad_x"] * scale / network.out_std
+    if theta is None:
+        pred = network.forward_standardized(x, batch["tau"])
+        (dy_dx,) = torch.autograd.grad(pred.sum(), x, create_graph=True)
+        scale = network.in_std[: network.nx]
+        # dy/dz = dy/dx * in_std; the label's dy/dz = dV/dx * in_std / out_std
+        diff = dy_dx * scale - batch["grad_x"] * scale / network.out_std
+    else:
+        th = theta.clone().requires_grad_(True)
+        pred = network.forward_standardized(x, batch["tau"], th)
+        dy_dx, dy_dth = torch.autograd.grad(pred.sum(), (x, th), create_graph=True)
+        scale = torch.cat([network.in_std[: network.nx], network.in_std[network.nx + 1 :]])
+        grads = torch.cat([dy_dx, dy_dth], dim=1)
+        labels = torch.cat([batch["grad_x"], batch["grad_theta"]], dim=1)
+        diff = grads * scale - labels * scale / network.out_std
     mask = batch["grad_ok"].to(torch.float64)
     grad_term = torch.sum(mask * torch.mean(diff**2, dim=1)) / torch.clamp(mask.sum(), min=1.0)
     return torch.mean((pred - target) ** 2) + sobolev_weight * grad_term
@@ -525,7 +586,10 @@ def evaluate(network: ValueModel, validation: TrainingArrays) -> tuple[float, fl
     """``(mse_initial, mse_all_knots)`` of ``network`` on per-knot validation arrays (NaN if empty)."""
     if len(validation) == 0:
         return float("nan"), float("nan")
-    pred = network.predict(validation.x, validation.tau)
+    if network.n_params and validation.theta is not None:
+        pred = network.predict(validation.x, validation.tau, validation.theta)
+    else:
+        pred = network.predict(validation.x, validation.tau)
     err2 = (pred - validation.value) ** 2
     init = validation.knot == 0
     return float(np.mean(err2[init])) if init.any() else float("nan"), float(np.mean(err2))
@@ -593,28 +657,34 @@ def _members(network: ValueModel) -> list[ValueNetwork]:
 
 
 def make_network(config: TrainConfig, task: Task) -> ValueModel:
-    """The run's (untrained) value function: a network, or an ensemble when ``config.ensemble >= 2``."""
+    """The run's (untrained) value function: a network, or an ensemble when ``config.ensemble >= 2``; over robots
+    (``model_params``) with the task's parameters as inputs, conditioned on the task's own values."""
+    robots = config.model_params and task.parameters is not None
+    n_params = task.parameters.size if robots and task.parameters is not None else 0
+    theta = task.theta if robots else None
     if config.ensemble >= 2:
         return ValueEnsemble(
-            task.nx, config.hidden, config.ensemble, config.ensemble_pessimism, task_name=task.name, seed=config.seed
+            task.nx,
+            config.hidden,
+            config.ensemble,
+            config.ensemble_pessimism,
+            task_name=task.name,
+            seed=config.seed,
+            n_params=n_params,
+            theta=theta,
         )
-    return ValueNetwork(task.nx, config.hidden, task_name=task.name, seed=config.seed)
+    return ValueNetwork(task.nx, config.hidden, task_name=task.name, seed=config.seed, n_params=n_params, theta=theta)
 
 
 def _concat(a: TrainingArrays, b: TrainingArrays) -> TrainingArrays:
-    return TrainingArrays(
-        np.concatenate([a.x, b.x]),
-        np.concatenate([a.tau, b.tau]),
-        np.concatenate([a.value, b.value]),
-        np.concatenate([a.grad_x, b.grad_x]),
-        np.concatenate([a.solve_index, b.solve_index]),
-        np.concatenate([a.knot, b.knot]),
-    )
+    return a.concat(b)
 
 
 def _make_sampler(config: TrainConfig, task: Task) -> Sampler:
-    """The run's sampler over the uniform baseline's starts for this seed."""
-    pool = StartPool.uniform(task, config.budget, _rng(config.seed, _STREAM_BASELINE_STARTS), config.uniform_tau)
+    """The run's sampler over the uniform baseline's starts (and, with ``model_params``, robots) for this seed."""
+    pool = StartPool.uniform(
+        task, config.budget, _rng(config.seed, _STREAM_BASELINE_STARTS), config.uniform_tau, config.model_params
+    )
     if config.sampler == "uniform":
         return UniformSampler(task, pool)
     if config.sampler == "closed-loop":
@@ -712,7 +782,13 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
     validation: TrainingArrays | None = None
     if config.validate:
         val_records = validation_dataset(
-            task, batch_solver, solver_name, config.cache_dir or default_cache_dir(), chunk, config.progress
+            task,
+            batch_solver,
+            solver_name,
+            config.cache_dir or default_cache_dir(),
+            chunk,
+            config.progress,
+            model_params=config.model_params,
         )
         validation = training_arrays(val_records, task.nx)
         if len(validation) == 0:
@@ -726,8 +802,10 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
     checkpoint_path = out / "checkpoint.pt"
 
     # Pretraining: identical for every sampler and Sobolev weight of this seed (only the value loss).
-    pool = StartPool.uniform(task, config.pretrain_solves, _rng(config.seed, _STREAM_PRETRAIN_STARTS))
-    pre_records = runner.solve(pool.starts, pool.taus, "pretrain")
+    pool = StartPool.uniform(
+        task, config.pretrain_solves, _rng(config.seed, _STREAM_PRETRAIN_STARTS), model_params=config.model_params
+    )
+    pre_records = runner.solve(pool.starts, pool.taus, "pretrain", thetas=pool.thetas)
     buffer = training_arrays(pre_records, task.nx)
     if len(buffer) == 0:
         raise RuntimeError(f"all {config.pretrain_solves} pretraining solves of {task.name} failed")
@@ -749,7 +827,7 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
         new = training_arrays(budget_records, task.nx)
         buffer = _concat(buffer, new)
     else:
-        network.set_normalization(buffer.x, buffer.tau, buffer.value)
+        network.set_normalization(buffer.x, buffer.tau, buffer.value, buffer.theta)
         pre_cfg = replace(config, sobolev_weight=0.0, newest_fraction=0.0)
         _Trainer(pre_cfg, network, None).train(
             buffer,
@@ -788,7 +866,7 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
         solves, failures = len(budget_records), count_failures(budget_records)
         buffer_solves = config.pretrain_solves + solves
         if config.renormalize:
-            network.renormalize(buffer.x, buffer.tau, _capped(buffer.value, config.value_cap))
+            network.renormalize(buffer.x, buffer.tau, _capped(buffer.value, config.value_cap), buffer.theta)
         trainer.train(
             buffer,
             newest,
@@ -844,7 +922,7 @@ def refit(
     same network.
     """
     network = make_network(config, task)
-    network.set_normalization(buffer.x, buffer.tau, _capped(buffer.value, config.value_cap))
+    network.set_normalization(buffer.x, buffer.tau, _capped(buffer.value, config.value_cap), buffer.theta)
     trainer.network = network
     trainer.optimizer = torch.optim.Adam(network.parameters(), lr=config.lr)
     trainer.train(

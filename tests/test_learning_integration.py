@@ -40,7 +40,7 @@ def test_adversarial_step_increases_the_true_loss_on_the_acrobot():
         rec = runner.solve(x[None], [5.0], "adversarial")[0]
         assert rec.success, rec.status
         loss, g_u = sampler.loss_gradient(rec, net)
-        x_new, _ = sampler._from_u(sampler.ascent_step(_Chain(0, sampler._to_u(x, 5.0)), g_u), x, 5.0)
+        x_new, _, _ = sampler._from_u(sampler.ascent_step(_Chain(0, sampler._to_u(x, 5.0)), g_u), x, 5.0)
         new = runner.solve(x_new[None], [5.0], "adversarial")[0]
         increased += 0.5 * (new.value - float(net.predict(x_new, 5.0)[0])) ** 2 > loss
     assert increased >= 3  # first-order ascent; a start near a switch between local optima may not follow

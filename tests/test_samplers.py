@@ -47,7 +47,7 @@ def test_adversarial_step_increases_the_loss(task_name, optimizer):
         from seagul_learn.samplers import _Chain
 
         chain = _Chain(i, sampler._to_u(starts[i], task.tau_nominal))
-        x_new, tau_new = sampler._from_u(sampler.ascent_step(chain, g_u), starts[i], task.tau_nominal)
+        x_new, tau_new, _ = sampler._from_u(sampler.ascent_step(chain, g_u), starts[i], task.tau_nominal)
         assert task.in_x0(x_new) and task.tau_range[0] <= tau_new <= task.tau_range[1]
         increased += _true_loss(toy, net, x_new, tau_new) > loss
     assert increased == 20
@@ -61,7 +61,7 @@ def test_a_descent_step_would_decrease_it():
     sampler = AdversarialSampler(task, StartPool(x[None], np.array([5.0]), np.arange(1)), AdversarialOptions())
     rec = SolveRunner(toy).solve(x[None], [5.0], "adversarial")[0]
     loss, g_u = sampler.loss_gradient(rec, net)
-    x_down, _ = sampler._from_u(sampler._to_u(x, 5.0) - 0.01 * g_u / np.abs(g_u).max(), x, 5.0)
+    x_down, _, _ = sampler._from_u(sampler._to_u(x, 5.0) - 0.01 * g_u / np.abs(g_u).max(), x, 5.0)
     assert _true_loss(toy, net, x_down, 5.0) < loss
 
 

@@ -87,3 +87,40 @@ class ToySolver:
     def __call__(self, starts: np.ndarray, taus: np.ndarray) -> list[SolveResult]:
         """The batch interface used by samplers and training."""
         return [self.solve(x, t) for x, t in zip(np.atleast_2d(starts), np.asarray(taus).reshape(-1), strict=True)]
+
+
+class ToyRobotSolver(ToySolver):
+    """The toy over robots: ``V(x, tau, theta) = V(x, tau) * (1 + c' (theta - theta0) / theta0)`` with ``theta0``
+    the task's own parameters, so ``dV/dtheta = V(x, tau) * c / theta0`` at every knot (the shape the real
+    optimizer's ``grad_theta`` and ``knot_grad_theta`` have)."""
+
+    def __init__(self, task: Task, **kwargs: object) -> None:
+        super().__init__(task, **kwargs)  # type: ignore[arg-type]
+        assert task.parameters is not None
+        self.theta0 = task.theta
+        self.c = np.linspace(0.5, -0.5, task.parameters.size)
+        self.theta_calls: list[np.ndarray] = []
+
+    def scale(self, theta: np.ndarray) -> float:
+        return float(1.0 + self.c @ ((theta - self.theta0) / self.theta0))
+
+    def solve_robot(self, x_init: np.ndarray, tau: float, theta: np.ndarray) -> SolveResult:
+        base = self.solve(x_init, tau)
+        theta = np.asarray(theta, dtype=np.float64)
+        self.theta_calls.append(theta.copy())
+        s = self.scale(theta)
+        per_value = base.cost_to_go.copy()
+        base.value, base.cost_to_go = base.value * s, base.cost_to_go * s
+        base.grad_x, base.knot_grads, base.grad_tau = base.grad_x * s, base.knot_grads * s, base.grad_tau * s
+        base.theta = theta.copy()
+        base.knot_grad_theta = per_value[:, None] * (self.c / self.theta0)[None, :]
+        base.grad_theta = base.knot_grad_theta[0].copy()
+        return base
+
+    def __call__(  # type: ignore[override]
+        self, starts: np.ndarray, taus: np.ndarray, thetas: np.ndarray | None = None
+    ) -> list[SolveResult]:
+        if thetas is None:
+            raise AssertionError("a run over robots must pass one theta per start")
+        rows = zip(np.atleast_2d(starts), np.asarray(taus).reshape(-1), np.atleast_2d(thetas), strict=True)
+        return [self.solve_robot(x, t, th) for x, t, th in rows]
