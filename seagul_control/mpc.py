@@ -68,6 +68,7 @@ NaN observations, wrong shapes and a horizon < 1 raise ValueErrors naming the pr
 from __future__ import annotations
 
 import contextlib
+import copy
 import inspect
 import os
 import tempfile
@@ -80,6 +81,7 @@ from typing import Any, Literal
 import casadi as ca
 import numpy as np
 
+from seagul_control.estimation import ParameterEstimator
 from seagul_control.lqr import LQRPolicy, episode_start_mask, output_actions, split_observation
 from seagul_control.transcription import (
     Transcription,
@@ -320,7 +322,7 @@ class _MPCBase:
         infos = []
         for i, (x, tau) in enumerate(zip(xs, taus, strict=True)):
             if starts[i]:
-                self._plans.pop(i, None)
+                self._forget(i)
             actions[i], info = self.act(x, float(tau), env_index=i)
             infos.append(info)
         self.last_info = infos
@@ -329,6 +331,10 @@ class _MPCBase:
     def reset(self) -> None:
         """Forget every warm start (all envs)."""
         self._plans.clear()
+
+    def _forget(self, env_index: int) -> None:
+        """A new episode starts in env ``env_index``: forget what belongs to its last one (its warm start)."""
+        self._plans.pop(env_index, None)
 
     def reset_stats(self) -> None:
         """Clear :attr:`stats`."""
@@ -547,6 +553,15 @@ class LimitedLookaheadMPC(_MPCBase):
             of exact reach, instead of failing. None: the task's ``profile.mpc_final_soft_weight`` (glider 1e4,
             measured: 1 fallback step in 1,152 on the 6 x 6 grid instead of 337, mean cost 347 against 483, the same
             perch rate); 0: hard bounds.
+        model_params: the lookahead's model takes the robot's physical parameters as NLP parameters (one build for
+            every robot; :meth:`set_robot`); needs a task that declares them (``Task.parameters``).
+        estimate_robot: plan for an online estimate of the robot (needs ``model_params``): before each step the
+            env's last transition updates a :class:`~seagul_control.estimation.ParameterEstimator` of that env's
+            episode, and the MPC plans for its estimate (:meth:`set_robot`). True for the estimator's defaults, or
+            a dict of its options (``window``, ``prior``, ``iterations``, ``min_transitions``).
+
+    A value function over robots (``n_params > 0``, e.g. a network trained with ``TrainConfig.model_params``) is
+    evaluated at the robot the MPC plans for: the task's own parameters, or those of :meth:`set_robot`.
     """
 
     name = "LimitedLookaheadMPC"
@@ -579,7 +594,13 @@ class LimitedLookaheadMPC(_MPCBase):
         cold_guess: str = "rollout",
         final_solver: SolverName | None = None,
         final_soft_weight: float | None = None,
+        model_params: bool = False,
+        estimate_robot: bool | dict[str, Any] = False,
     ) -> None:
+        if model_params and task.parameters is None:
+            raise ValueError(f"{self.name}: model_params=True needs a task that declares which parameters vary")
+        if estimate_robot is not False and not model_params:
+            raise ValueError(f"{self.name}: estimate_robot needs model_params=True (the plan uses the estimate)")
         if steps not in ("fixed", "free"):
             raise ValueError(f"{self.name}: steps must be 'fixed' or 'free', got {steps!r}")
         has_box = bool(np.any(np.isfinite(task.x_final_low)) or np.any(np.isfinite(task.x_final_high)))
@@ -593,6 +614,13 @@ class LimitedLookaheadMPC(_MPCBase):
         if not (np.isfinite(trust_weight) and trust_weight >= 0):
             raise ValueError(f"{self.name}: trust_weight must be a finite number >= 0, got {trust_weight!r}")
         super().__init__(task, dt, warm_start, cold_guess)
+        self.model_params = bool(model_params)
+        self._estimator_options: dict[str, Any] | None = None
+        if estimate_robot is not False:
+            self._estimator_options = {} if estimate_robot is True else dict(estimate_robot)
+            ParameterEstimator(task, self.dt, **self._estimator_options)  # bad options fail here, not mid-episode
+        self._estimators: dict[int, ParameterEstimator] = {}
+        self._last_step: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.horizon = int(horizon)
         self.trust_region: TrustRegion = trust_region
         self.trust_weight = float(trust_weight)
@@ -613,6 +641,8 @@ class LimitedLookaheadMPC(_MPCBase):
         self.free_time = steps == "free"
         self._vf_fn: ca.Function | None = None
         self._vf_theta = np.zeros(0)
+        self._vf_robots: Any = None
+        """A private copy of a value function over robots (re-conditioned by :meth:`set_robot`), else None."""
         self._anchor_cache: dict[float, np.ndarray] = {}
         n_vf = 0
         if value_function is not None:
@@ -653,6 +683,7 @@ class LimitedLookaheadMPC(_MPCBase):
             "terminal_cost": terminal,
             "n_theta": n_theta,
             "substeps": substeps,
+            "model_params": self.model_params,
         }
         if not self.free_time:
             self._lookahead = self._build("lookahead", False, free_time=False, step=self.dt, final_box=False, **common)
@@ -714,6 +745,12 @@ class LimitedLookaheadMPC(_MPCBase):
         high = self.task.check_state(high, "trust_box high")
         if np.any(high < low):
             raise ValueError(f"{self.name}: trust_box high must be >= low, got {low} and {high}")
+        self._vf_robots = None
+        if int(getattr(value_function, "n_params", 0) or 0) > 0:
+            # Conditioned on the robot the MPC plans for, on a copy: the caller's network keeps its own condition.
+            self._vf_robots = copy.deepcopy(value_function)
+            self._vf_robots.condition(self.robot)
+            theta = np.asarray(self._vf_robots.casadi_parameters(), dtype=float).ravel()
         self._vf_theta = theta
         self._anchor_cache.clear()
         self.trust_box = (low, high)
@@ -850,8 +887,73 @@ class LimitedLookaheadMPC(_MPCBase):
                 jit=True,
                 solver=self.final_solver,
                 soft_bounds_weight=self.final_soft_weight,
+                model_params=self.model_params,
             )
         return self._final_fixed[k], theta
+
+    # ------------------------------------------------------------------ robots
+    def set_robot(self, theta: Any) -> None:
+        """Plan for the robot with parameters ``theta`` (``task.parameters`` order or a mapping; None: the task's
+        own): the lookahead's model takes them (``model_params=True``) and a value function over robots is
+        evaluated at them. Only NLP parameters change (no rebuild, warm starts kept), so it may be called at every
+        step, e.g. with an online estimate.
+
+        Raises:
+            ValueError: the task declares no parameters, the MPC neither takes them nor has a value function over
+                robots, or ``theta`` is malformed.
+        """
+        space = self.task.parameters
+        if space is None or not (self.model_params or self._vf_robots is not None):
+            raise ValueError(
+                f"{self.name}: set_robot needs LimitedLookaheadMPC(..., model_params=True) or a value function over "
+                "robots (n_params > 0) on a task that declares its parameters"
+            )
+        resolved = None if theta is None else space.resolve(theta, self.task.theta, self.task.name)
+        if self.model_params:
+            self._robot = resolved
+        if self._vf_robots is not None:
+            self._vf_robots.condition(self.task.theta if resolved is None else resolved)
+            self._vf_theta = np.asarray(self._vf_robots.casadi_parameters(), dtype=float).ravel()
+            self._theta[: self.n_vf] = self._vf_theta
+            self._anchor_cache.clear()
+
+    @property
+    def robot(self) -> np.ndarray:
+        """The parameters the MPC plans for (the task's own unless :meth:`set_robot` gave others)."""
+        return self.task.theta if self._robot is None else self._robot.copy()
+
+    def act(self, x: np.ndarray, tau: float, env_index: int = 0) -> tuple[np.ndarray, MPCStepInfo]:
+        """As :meth:`_MPCBase.act`; with ``estimate_robot``, first the env's last transition updates its estimate
+        and the MPC plans for it."""
+        if self._estimator_options is None:
+            return super().act(x, tau, env_index)
+        estimator = self._estimators.get(env_index)
+        if estimator is None:
+            estimator = self._estimators[env_index] = ParameterEstimator(self.task, self.dt, **self._estimator_options)
+        last = self._last_step.get(env_index)
+        x_now = np.asarray(x, dtype=float).reshape(-1)
+        self.set_robot(estimator.update(last[0], last[1], x_now) if last is not None else estimator.theta)
+        u, info = super().act(x, tau, env_index)
+        self._last_step[env_index] = (x_now.copy(), np.asarray(u, dtype=float).copy())
+        return u, info
+
+    def estimate(self, env_index: int = 0) -> np.ndarray:
+        """The current robot estimate of env ``env_index`` (``estimate_robot``; the task's own before any step)."""
+        if self._estimator_options is None:
+            raise ValueError(f"{self.name}: estimate() needs estimate_robot")
+        est = self._estimators.get(env_index)
+        return self.task.theta if est is None else est.theta.copy()
+
+    def reset(self) -> None:
+        """Forget every warm start and, with ``estimate_robot``, every episode's estimate."""
+        super().reset()
+        self._estimators.clear()
+        self._last_step.clear()
+
+    def _forget(self, env_index: int) -> None:
+        super()._forget(env_index)
+        self._estimators.pop(env_index, None)
+        self._last_step.pop(env_index, None)
 
 
 # ----------------------------------------------------------------------------------------------- full horizon

@@ -1,0 +1,122 @@
+"""Online estimates of a robot's physical parameters from its observed transitions (docs/spec.md §14).
+
+A controller that meets a robot other than its model (``Task.parameters``: masses, lengths, damping, areas) can
+plan for an estimate of the true ``theta`` instead of the nominal one. :class:`ParameterEstimator` fits ``theta``
+to the last ``window`` transitions ``(x_i, u_i) -> x_{i+1}`` of one episode by regularised least squares on the
+task's own one-period map (the simulator's RK4 with its substeps, at ``theta``)::
+
+    theta_hat = argmin_{theta in Theta}  sum_i |W (F(x_i, u_i, dt, theta) - x_{i+1})|^2
+                                       + prior * |(theta - theta_0) / width(Theta)|^2
+
+``W`` scales each state coordinate by the width of X0 (1 where that is 0), ``theta_0`` is the task's own robot,
+and the problem is solved by a few projected Gauss-Newton steps from the previous estimate (the residual's
+Jacobian in ``theta`` from CasADi, built once). The prior keeps parameters that the data do not determine (a
+resting acrobot says little about its masses) at their nominal values. It is a one-step-ahead prediction-error
+fit: exact data of the model family give the true ``theta`` back (tested), noise or unmodelled effects bias it.
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from typing import Any
+
+import casadi as ca
+import numpy as np
+
+from seagul_envs.tasks.base import Task
+
+
+class ParameterEstimator:
+    """Least-squares estimate of ``theta`` from an episode's recent transitions (module docstring).
+
+    Args:
+        task: the task (its ``parameters`` declare ``theta`` and the box Theta).
+        dt: the control period of the transitions (default: the task's).
+        window: transitions kept (the most recent).
+        prior: weight of the pull towards the task's own parameters, per squared box width.
+        iterations: Gauss-Newton steps per :meth:`update`.
+        min_transitions: no estimate (the task's own ``theta``) before this many transitions.
+    """
+
+    def __init__(
+        self,
+        task: Task,
+        dt: float | None = None,
+        window: int = 20,
+        prior: float = 1e-3,
+        iterations: int = 3,
+        min_transitions: int = 3,
+    ) -> None:
+        if task.parameters is None:
+            raise ValueError(f"{task.name}: a ParameterEstimator needs a task that declares its parameters")
+        if window < 1 or iterations < 1 or min_transitions < 1:
+            raise ValueError(
+                f"window, iterations and min_transitions must be >= 1, got {window}, {iterations}, {min_transitions}"
+            )
+        if not (np.isfinite(prior) and prior > 0):
+            raise ValueError(f"prior must be a positive number, got {prior!r}")
+        self.task = task
+        self.space = task.parameters
+        self.dt = float(task.control_period if dt is None else dt)
+        self.window = int(window)
+        self.prior = float(prior)
+        self.iterations = int(iterations)
+        self.min_transitions = int(min_transitions)
+        self.theta0 = task.theta
+        width = self.space.high - self.space.low
+        self._width = np.where(width > 0, width, np.maximum(np.abs(self.theta0), 1.0))
+        x_width = task.x0_high - task.x0_low
+        self._w = 1.0 / np.where(x_width > 0, x_width, 1.0)
+        step = task.rk4_step_params(task.simulator_substeps(self.dt))
+        x, u, th = ca.SX.sym("x", task.nx), ca.SX.sym("u", task.nu), ca.SX.sym("theta", self.space.size)
+        nxt = step(x, u, self.dt, th)
+        self._f = ca.Function("estimator_step", [x, u, th], [nxt, ca.jacobian(nxt, th)])
+        self._history: deque[tuple[np.ndarray, np.ndarray, np.ndarray]] = deque(maxlen=self.window)
+        self.theta = self.theta0.copy()
+        """The current estimate (the task's own parameters until :attr:`min_transitions` transitions)."""
+
+    def reset(self) -> None:
+        """Forget the episode: the estimate goes back to the task's own parameters."""
+        self._history.clear()
+        self.theta = self.theta0.copy()
+
+    def __len__(self) -> int:
+        return len(self._history)
+
+    def residual(self, theta: Any) -> float:
+        """The weighted sum of squared one-step prediction errors over the window at ``theta``."""
+        th = np.asarray(theta, dtype=float)
+        return float(
+            sum(np.sum((self._w * (np.asarray(self._f(x, u, th)[0]).ravel() - xn)) ** 2) for x, u, xn in self._history)
+        )
+
+    def update(self, x: Any, u: Any, x_next: Any) -> np.ndarray:
+        """Add the transition ``x --u--> x_next`` (one control period) and return the new estimate."""
+        x = np.asarray(x, dtype=float).reshape(self.task.nx)
+        u = np.asarray(u, dtype=float).reshape(self.task.nu)
+        x_next = np.asarray(x_next, dtype=float).reshape(self.task.nx)
+        if not (np.all(np.isfinite(x)) and np.all(np.isfinite(u)) and np.all(np.isfinite(x_next))):
+            return self.theta.copy()  # a broken transition says nothing about the robot
+        self._history.append((x, u, x_next))
+        if len(self._history) < self.min_transitions:
+            return self.theta.copy()
+        theta = self.theta.copy()
+        k = self.space.size
+        reg = np.sqrt(self.prior) / self._width
+        for _ in range(self.iterations):
+            rows, res = [np.diag(reg)], [reg * (theta - self.theta0)]
+            for xi, ui, xn in self._history:
+                pred, jac = self._f(xi, ui, theta)
+                res.append(self._w * (np.asarray(pred).ravel() - xn))
+                rows.append(self._w[:, None] * np.asarray(jac).reshape(self.task.nx, k))
+            jac_all, r_all = np.vstack(rows), np.concatenate(res)
+            step, *_ = np.linalg.lstsq(jac_all, -r_all, rcond=None)
+            new = np.clip(theta + step, self.space.low, self.space.high)
+            if not np.all(np.isfinite(new)):
+                break
+            done = float(np.max(np.abs(new - theta) / self._width)) < 1e-10
+            theta = new
+            if done:
+                break
+        self.theta = theta
+        return theta.copy()

@@ -1,0 +1,113 @@
+"""The learned MPC over robots (issue 13, item 5): planning for another robot without a rebuild."""
+
+from __future__ import annotations
+
+import dataclasses
+
+import numpy as np
+import pytest
+
+from seagul_control.mpc import LimitedLookaheadMPC
+from seagul_envs import make_task
+from seagul_learn.value_network import ValueNetwork
+
+TASK = make_task("acrobot")
+X = np.array([np.pi - 0.2, 0.15, 0.1, -0.2])
+
+
+def _network() -> ValueNetwork:
+    net = ValueNetwork(TASK.nx, (8,), seed=3, n_params=TASK.parameters.size, theta=TASK.theta, task_name="acrobot")
+    rng = np.random.default_rng(0)
+    xs = TASK.sample_x0(rng, 64)
+    thetas = TASK.parameters.sample(rng, 64)
+    net.set_normalization(xs, np.full(64, 5.0), rng.uniform(0, 30, 64), thetas)
+    return net
+
+
+def test_set_robot_plans_like_an_mpc_built_for_that_robot_and_leaves_the_callers_network_alone():
+    net = _network()
+    theta = TASK.parameters.low + 0.8 * (TASK.parameters.high - TASK.parameters.low)
+    options = dict(jit=False, trust_region="none", solver="ipopt", tol=1e-10, max_iter=200)
+    shared = LimitedLookaheadMPC(TASK, net, 5, model_params=True, **options)
+    u_nominal, info = shared.act(X, 5.0)
+    assert info.success
+    shared.set_robot(theta)
+    np.testing.assert_array_equal(shared.robot, theta)
+    shared.reset()
+    u_robot, info = shared.act(X, 5.0)
+    assert info.success
+    rebuilt = LimitedLookaheadMPC(TASK.with_params(theta), net, 5, **options)  # conditioned on its task's robot
+    u_ref, _ = rebuilt.act(X, 5.0)
+    np.testing.assert_allclose(u_robot, u_ref, atol=1e-6)
+    assert abs(float(u_robot[0] - u_nominal[0])) > 1e-3  # another robot, another action
+    np.testing.assert_array_equal(net.theta, TASK.theta)  # the caller's network keeps its condition
+    assert shared.terminal_cost_value(X, 4.5) == pytest.approx(rebuilt.terminal_cost_value(X, 4.5), rel=1e-9)
+    shared.set_robot(None)
+    shared.reset()
+    np.testing.assert_allclose(shared.act(X, 5.0)[0], u_nominal, atol=1e-6)
+
+
+def test_set_robot_needs_parameters_to_plan_with():
+    plain = LimitedLookaheadMPC(TASK, None, 5, jit=False)
+    with pytest.raises(ValueError, match="set_robot needs"):
+        plain.set_robot(TASK.theta)
+    with pytest.raises(ValueError, match="model_params=True needs a task"):
+        LimitedLookaheadMPC(dataclasses.replace(TASK, parameters=None), None, 5, jit=False, model_params=True)
+    mpc = LimitedLookaheadMPC(TASK, None, 5, jit=False, model_params=True)
+    with pytest.raises(ValueError, match="unknown parameter"):
+        mpc.set_robot({"mass": 1.0})
+
+
+def _transitions(theta: np.ndarray, n: int, seed: int = 0) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """``n`` transitions of the robot ``theta`` in the task's own simulator, under random torques."""
+    robot = TASK.with_params(theta)
+    sim = robot.simulator(TASK.control_period)
+    rng = np.random.default_rng(seed)
+    x, out = X.copy(), []
+    for _ in range(n):
+        u = rng.uniform(TASK.u_low, TASK.u_high)
+        nxt = np.asarray(sim(x, u)).ravel()
+        out.append((x, u, nxt))
+        x = nxt
+    return out
+
+
+def test_the_estimator_recovers_a_robot_from_its_transitions_and_resets_to_the_model():
+    from seagul_control.estimation import ParameterEstimator
+
+    space = TASK.parameters
+    theta = space.low + np.array([0.8, 0.3, 0.6, 0.2, 0.9, 0.1]) * (space.high - space.low)
+    est = ParameterEstimator(TASK, window=20, iterations=5, prior=1e-6)
+    np.testing.assert_array_equal(est.theta, TASK.theta)
+    data = _transitions(theta, 20)
+    for x, u, nxt in data:
+        est.update(x, u, nxt)
+    assert est.residual(est.theta) < 1e-6 * est.residual(TASK.theta)
+    np.testing.assert_allclose(est.theta, theta, atol=0.02 * float(np.max(space.high - space.low)))
+    assert np.all(est.theta >= space.low) and np.all(est.theta <= space.high)
+    est.reset()
+    assert len(est) == 0
+    np.testing.assert_array_equal(est.theta, TASK.theta)
+    with pytest.raises(ValueError, match="prior must be a positive number"):
+        ParameterEstimator(TASK, prior=0.0)
+
+
+def test_an_estimating_mpc_plans_for_its_estimate_and_forgets_it_at_a_new_episode():
+    space = TASK.parameters
+    theta = space.low + 0.75 * (space.high - space.low)
+    mpc = LimitedLookaheadMPC(
+        TASK, _network(), 5, jit=False, trust_region="none", solver="ipopt", model_params=True, estimate_robot=True
+    )
+    sim = TASK.with_params(theta).simulator(TASK.control_period)
+    x, tau = X.copy(), 5.0
+    for _ in range(8):
+        u, _ = mpc.act(x, tau)
+        x, tau = np.asarray(sim(x, u)).ravel(), tau - TASK.control_period
+    moved = mpc.estimate()
+    assert np.max(np.abs(moved - theta)) < np.max(np.abs(TASK.theta - theta))  # nearer the truth than the model
+    np.testing.assert_array_equal(mpc.robot, moved)
+    obs = np.append(x, tau)[None, :]
+    mpc.predict(obs, episode_start=np.array([True]))  # a new episode: its first step plans for the model
+    np.testing.assert_array_equal(mpc.robot, TASK.theta)
+    with pytest.raises(ValueError, match="estimate_robot needs model_params"):
+        LimitedLookaheadMPC(TASK, None, 5, jit=False, estimate_robot=True)
