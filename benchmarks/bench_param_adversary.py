@@ -1,0 +1,340 @@
+"""Adversarial samples over model parameters against uniform-over-Theta, and the robust MPC they give (issue 13).
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_param_adversary.py [--quick] [--tasks acrobot] [--seeds N] [--budget B]
+        [--starts N] [--workers 2] [--out DIR] [--update FILE]
+
+Per task and seed (paired: the three runs of a seed share their pretraining solves, their pool of starts and, for
+the two runs over robots, the robots of those starts), at equal solves:
+
+* ``adversarial``: ``TrainConfig(sampler="adversarial", model_params=True)``: paper Alg. 1's ascent over
+  ``(x, theta)`` in ``X0 x Theta`` on ``1/2 (V - Vhat)^2``, with ``dV/dtheta`` from the duals;
+* ``uniform``: ``sampler="uniform", model_params=True``: uniform over ``X0 x Theta``;
+* ``nominal``: ``sampler="uniform"`` on the model's robot only (``Vhat(x, tau)``).
+
+Each network is scored on
+
+* the validation set over robots (the task's validation starts, each with a robot drawn from Theta with a fixed
+  seed; ``mse_initial`` and ``mse_all_knots``; the nominal network ignores theta), and
+* **robust closed-loop success**: ``--starts`` held-out X0 starts (never trained on), each simulated on its own
+  robot drawn from Theta (a fixed seed), with the deployed learned MPC. The networks over robots drive
+  ``LimitedLookaheadMPC(..., model_params=True, estimate_robot=True)``: the MPC plans, and evaluates the value, for
+  an online least-squares estimate of the robot from the episode's transitions (``seagul_control.estimation``);
+  the nominal network drives the MPC on the model (``nominal``) and, as a control for what the estimate alone
+  gives, the same estimating MPC (``nominal_estimate``).
+
+Beside them on the same starts and robots: LQR on the model, the full-horizon MPC on the model, and the full-horizon
+MPC that knows each true robot (``FullHorizonMPC(model_params=True)``, ``set_robot``; the upper reference). The
+dual ``dV/dtheta`` is checked against central finite differences of re-solved values at random ``(x, theta)``.
+
+Every stage is stored under ``--out`` (training checkpoints, one JSON per evaluation), so a re-run continues.
+The last line of stdout is one JSON object (the full run's is committed as
+``benchmarks/results/param_adversary.json``)::
+
+    {"acrobot": {"theta_box": {...}, "seeds": int, "budget": int, "adversarial_success_rate": float,
+                 "uniform_success_rate": float, "nominal_success_rate": float, "full_horizon_success_rate": float,
+                 "grad_theta_fd_max_rel_error": float, ...}, "machine": {...}}
+
+Success rates are over starts x drawn robots, medians over seeds; ``per_seed``, validation MSEs, the seed-paired
+tests (adversarial minus uniform) and the reference controllers are in the same block.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks._common import machine  # noqa: E402
+from benchmarks.bench_closed_loop import paired_test  # noqa: E402
+from seagul_control.evaluation import PolicySpec, default_horizon, evaluate, heldout_starts  # noqa: E402
+from seagul_envs import make_task  # noqa: E402
+
+METHODS: dict[str, dict[str, Any]] = {
+    "adversarial": {"sampler": "adversarial", "model_params": True},
+    "uniform": {"sampler": "uniform", "model_params": True},
+    "nominal": {"sampler": "uniform", "model_params": False},
+}
+ROBOT_SEED = 20261202
+"""Seed of the robots the closed-loop starts are simulated on (the same for every method, seed and run)."""
+FD_SEED = 7
+
+
+@dataclass
+class ParamBenchConfig:
+    """Every number of one run (``--quick`` replaces some)."""
+
+    task: str = "acrobot"
+    seeds: int = 5
+    budget: int = 300
+    starts: int = 30
+    """Closed-loop episodes per network: held-out X0 starts, each on its own robot from Theta."""
+    fd_points: int = 2
+    trust_region: str = "lqr"
+    """The deployed MPC's guard (``LimitedLookaheadMPC``'s default)."""
+    jit: bool = True
+    train: dict[str, Any] = field(
+        default_factory=lambda: {
+            "hidden": (64, 64),
+            "solves_per_round": 10,
+            "train_steps_per_round": 500,
+            "sobolev_weight": 1.0,
+            "pretrain_solves": 10,
+            "adv_max_steps": 5,
+        }
+    )
+
+    @classmethod
+    def for_task(cls, task: str, quick: bool) -> ParamBenchConfig:
+        if quick:
+            return cls(
+                task=task,
+                seeds=2,
+                budget=20,
+                starts=3,
+                fd_points=1,
+                jit=False,
+                train={
+                    "hidden": (16,),
+                    "solves_per_round": 10,
+                    "train_steps_per_round": 50,
+                    "sobolev_weight": 1.0,
+                    "pretrain_solves": 4,
+                    "adv_max_steps": 3,
+                },
+            )
+        return cls(task=task)
+
+
+def _train_one(cfg: dict[str, Any], out: str) -> str:
+    from seagul_learn.training import TrainConfig, train
+
+    if not (Path(out) / "metrics.json").is_file():
+        train(TrainConfig(**cfg), out, resume=(Path(out) / "config.json").is_file())
+    return out
+
+
+def train_all(bench: ParamBenchConfig, out: Path, workers: int) -> dict[tuple[str, int], Path]:
+    """One run per (method, seed), in parallel processes."""
+    from joblib import Parallel, delayed
+
+    jobs = {}
+    for seed in range(bench.seeds):
+        for method, settings in METHODS.items():
+            cfg = {"task": bench.task, **bench.train, **settings, "budget": bench.budget, "seed": seed}
+            jobs[(method, seed)] = ({**cfg, "progress": False}, str(out / "train" / f"{method}-seed{seed}"))
+    Parallel(n_jobs=workers)(delayed(_train_one)(*job) for job in jobs.values())
+    return {k: Path(v[1]) for k, v in jobs.items()}
+
+
+def robust_validation(task_name: str, run: Path) -> dict[str, float]:
+    """Validation MSEs of a run's network on the validation set over robots (the nominal network ignores theta)."""
+    from seagul_learn.dataset import training_arrays
+    from seagul_learn.solving import solver_key, trajopt_batch_solver
+    from seagul_learn.training import TrainConfig, default_cache_dir, evaluate, validation_dataset
+    from seagul_learn.value_network import ValueNetwork
+
+    task = make_task(task_name)
+    config = TrainConfig.from_run(run)
+    records = validation_dataset(
+        task,
+        trajopt_batch_solver(task, solver_options=config.solver_options),
+        solver_key(config.solver_options, task),
+        config.cache_dir or default_cache_dir(),
+        model_params=True,
+    )
+    arrays = training_arrays(records, task.nx)
+    network = ValueNetwork.load(run / "network.pt")
+    if not network.n_params:
+        arrays = arrays.__class__(arrays.x, arrays.tau, arrays.value, arrays.grad_x, arrays.solve_index, arrays.knot)
+    mse_initial, mse_all = evaluate(network, arrays)
+    return {"mse_initial": mse_initial, "mse_all_knots": mse_all}
+
+
+def mpc_options(bench: ParamBenchConfig, estimating: bool) -> tuple[tuple[str, Any], ...]:
+    task = make_task(bench.task)
+    options: tuple[tuple[str, Any], ...] = (
+        ("horizon", default_horizon(task)),
+        ("trust_region", bench.trust_region),
+        ("jit", bench.jit),
+    )
+    return options + ((("model_params", True), ("estimate_robot", True)) if estimating else ())
+
+
+def closed_loop(
+    bench: ParamBenchConfig, spec: PolicySpec, starts: np.ndarray, robots: np.ndarray, workers: int, out: Path
+) -> dict[str, Any]:
+    """Success of one policy over the starts x robots (cached as JSON)."""
+    if out.is_file():
+        return json.loads(out.read_text())
+    t0 = time.perf_counter()
+    results = evaluate(bench.task, [spec], starts, workers=workers, progress=False, robots=robots)
+    times = np.array([t for r in results for t in r.solve_times]) * 1e3
+    row = {
+        "success_rate": float(np.mean([r.success for r in results])),
+        "success": [bool(r.success) for r in results],
+        "final_distance_median": float(np.median([r.final_distance for r in results])),
+        "fallback_steps": int(sum(r.fallbacks for r in results)),
+        "median_ms": float(np.median(times)) if times.size else float("nan"),
+        "p95_ms": float(np.percentile(times, 95)) if times.size else float("nan"),
+        "wall_s": round(time.perf_counter() - t0, 1),
+    }
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps(row, indent=1))
+    return row
+
+
+def grad_theta_fd_error(task_name: str, points: int) -> float:
+    """Max over ``points`` random ``(x, theta)`` and parameters of ``|dV/dtheta - FD| / scale`` (central FD of
+    re-solved values at ``theta +- 1e-4 |theta_i|``; scale ``max(|FD_i|, 1e-3 max|FD|)``)."""
+    from seagul_learn.trajopt import TrajectoryOptimizer
+
+    task = make_task(task_name)
+    space = task.parameters
+    assert space is not None
+    opt = TrajectoryOptimizer(task, codegen=False, tol=1e-10, multi_start="never", model_params=True)
+    rng = np.random.default_rng(FD_SEED)
+    worst = 0.0
+    for x, theta in zip(task.sample_x0(rng, points), space.sample(rng, points), strict=True):
+        res = opt.solve(x, theta=theta)
+        if not res.success or res.grad_theta is None:
+            return float("nan")
+        fd = np.zeros(space.size)
+        for i in range(space.size):
+            step = 1e-4 * abs(theta[i])
+            up, down = theta.copy(), theta.copy()
+            up[i] += step
+            down[i] -= step
+            v_up, v_down = opt.solve(x, theta=up), opt.solve(x, theta=down)
+            if not (v_up.success and v_down.success):
+                return float("nan")
+            fd[i] = (v_up.value - v_down.value) / (2 * step)
+        scale = np.maximum(np.abs(fd), 1e-3 * np.max(np.abs(fd)))
+        worst = max(worst, float(np.max(np.abs(res.grad_theta - fd) / scale)))
+    return worst
+
+
+def run_task(bench: ParamBenchConfig, out: Path, workers: int) -> dict[str, Any]:
+    task = make_task(bench.task)
+    space = task.parameters
+    if space is None:
+        raise SystemExit(f"{bench.task} declares no physical parameters")
+    t0 = time.perf_counter()
+    runs = train_all(bench, out, workers)
+    train_s = time.perf_counter() - t0
+    starts = heldout_starts(task, bench.starts)
+    robots = space.sample(np.random.default_rng(ROBOT_SEED), bench.starts)
+    ev = out / "eval"
+    refs = {
+        "full_horizon": PolicySpec("full", "full horizon (knows the robot)", None, (("model_params", True),), True),
+        "full_horizon_model": PolicySpec("full", "full horizon (model)"),
+        "lqr": PolicySpec("lqr", "LQR (model)"),
+    }
+    reference = {k: closed_loop(bench, s, starts, robots, workers, ev / f"{k}.json") for k, s in refs.items()}
+    per_seed: dict[str, list[dict[str, Any]]] = {m: [] for m in (*METHODS, "nominal_estimate")}
+    for seed in range(bench.seeds):
+        for method in METHODS:
+            run = runs[(method, seed)]
+            net = str(run / "network.pt")
+            spec = PolicySpec("mpc", method, net, mpc_options(bench, estimating=method != "nominal"))
+            row = closed_loop(bench, spec, starts, robots, workers, ev / f"{method}-seed{seed}.json")
+            row = {"seed": seed, **row, **robust_validation(bench.task, run)}
+            row["solves"] = _solves(run)
+            per_seed[method].append(row)
+            if method == "nominal":
+                spec = PolicySpec("mpc", "nominal_estimate", net, mpc_options(bench, estimating=True))
+                extra = closed_loop(bench, spec, starts, robots, workers, ev / f"nominal_estimate-seed{seed}.json")
+                per_seed["nominal_estimate"].append({"seed": seed, **extra})
+
+    def med(method: str, key: str = "success_rate") -> float:
+        return float(np.median([r[key] for r in per_seed[method]]))
+
+    def col(method: str, key: str = "success_rate") -> list[float]:
+        return [float(r[key]) for r in per_seed[method]]
+
+    block = {
+        "theta_box": space.box(),
+        "theta_nominal": space.as_dict(task.theta),
+        "seeds": bench.seeds,
+        "budget": bench.budget,
+        "starts": bench.starts,
+        "adversarial_success_rate": med("adversarial"),
+        "uniform_success_rate": med("uniform"),
+        "nominal_success_rate": med("nominal"),
+        "full_horizon_success_rate": reference["full_horizon"]["success_rate"],
+        "grad_theta_fd_max_rel_error": grad_theta_fd_error(bench.task, bench.fd_points),
+        "nominal_estimate_success_rate": med("nominal_estimate"),
+        "full_horizon_model_success_rate": reference["full_horizon_model"]["success_rate"],
+        "lqr_success_rate": reference["lqr"]["success_rate"],
+        "validation": {
+            m: {"mse_initial": med(m, "mse_initial"), "mse_all_knots": med(m, "mse_all_knots")} for m in METHODS
+        },
+        "paired_adversarial_minus_uniform": {
+            "success_rate": paired_test(col("adversarial"), col("uniform")),
+            # uniform minus adversarial: positive (a "win") when the adversary's error is the lower one
+            "mse_all_knots_reduction": paired_test(
+                col("uniform", "mse_all_knots"), col("adversarial", "mse_all_knots")
+            ),
+            "mse_initial_reduction": paired_test(col("uniform", "mse_initial"), col("adversarial", "mse_initial")),
+        },
+        "paired_adversarial_minus_nominal": {"success_rate": paired_test(col("adversarial"), col("nominal"))},
+        "per_seed": {m: [{k: v for k, v in r.items() if k != "success"} for r in rows] for m, rows in per_seed.items()},
+        "deployed": {
+            "learned": "LimitedLookaheadMPC(task, net, horizon, trust_region, model_params=True, estimate_robot=True)",
+            "nominal": "LimitedLookaheadMPC(task, net, horizon, trust_region)",
+            "options": dict(mpc_options(bench, estimating=True)),
+        },
+        "train_settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in bench.train.items()},
+        "robot_seed": ROBOT_SEED,
+        "train_wall_s": round(train_s, 1),
+    }
+    return block
+
+
+def _solves(run: Path) -> int:
+    metrics = json.loads((run / "metrics.json").read_text())["metrics"]
+    return int(metrics[-1]["solves"])
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="a minutes-long check of the pipeline")
+    parser.add_argument("--tasks", default="acrobot", help="comma-separated tasks (acrobot, glider)")
+    parser.add_argument("--seeds", type=int, default=None)
+    parser.add_argument("--budget", type=int, default=None, help="solves per network")
+    parser.add_argument("--starts", type=int, default=None, help="closed-loop starts (each on its own robot)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", default=None, help="work directory (default /tmp/seagul-bench-param-adversary)")
+    parser.add_argument("--update", default=None, metavar="JSON", help="also merge the result into this file")
+    args = parser.parse_args(argv)
+    out = Path(args.out or f"/tmp/seagul-bench-param-adversary{'-quick' if args.quick else ''}")
+    result: dict[str, Any] = {}
+    t0 = time.perf_counter()
+    for task in args.tasks.split(","):
+        bench = ParamBenchConfig.for_task(task, args.quick)
+        for name in ("seeds", "budget", "starts"):
+            if getattr(args, name) is not None:
+                setattr(bench, name, int(getattr(args, name)))
+        result[task] = run_task(bench, out / task, args.workers)
+    result["machine"] = {**machine("torch"), "wall_s": round(time.perf_counter() - t0, 1)}
+    if args.update:
+        path = Path(args.update)
+        merged = json.loads(path.read_text()) if path.is_file() else {}
+        merged.update(result)
+        path.write_text(json.dumps(merged, indent=1) + "\n")
+    print(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
