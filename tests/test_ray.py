@@ -97,6 +97,20 @@ def test_ray_backend_equals_local_backend(local_ray: Any, task_name: str) -> Non
     _assert_same_results(local, remote)
 
 
+def test_ray_solves_each_start_for_its_robot_like_the_local_backend(local_ray: Any) -> None:
+    task = make_task("acrobot")
+    rng = np.random.default_rng(2)
+    starts = task.sample_x0(rng, 3)
+    thetas = task.parameters.sample(rng, 3)
+    options = {"codegen": False, "multi_start": "never"}
+    local = solve_many(task, starts, thetas=thetas, workers=1, progress=False, solver_options=options)
+    remote = solve_many(task, starts, thetas=thetas, workers=2, backend="ray", progress=False, solver_options=options)
+    _assert_same_results(local, remote)
+    for a, b, theta in zip(local, remote, thetas, strict=True):
+        np.testing.assert_array_equal(b.theta, theta)
+        np.testing.assert_array_equal(a.knot_grad_theta, b.knot_grad_theta)
+
+
 def _parent(pid: int) -> int:
     stat = Path(f"/proc/{pid}/stat").read_text()
     return int(stat[stat.rindex(")") + 2 :].split()[1])  # the command name may contain spaces
