@@ -248,6 +248,11 @@ def test_the_mpc_plans_with_a_network_over_robots_at_its_condition():
     mpc = LimitedLookaheadMPC(task, net, 5, jit=False)
     u, info = mpc.act(np.array([np.pi - 0.2, 0.1, 0.0, 0.0]), 5.0)
     assert info.success and np.all(np.abs(u) <= task.u_high)
+    # The MPC evaluates the value at the robot it plans for (the task's own), whatever the network's condition ...
     net.condition(task.parameters.high)
-    mpc.set_value_function(net)  # another robot: parameters only, no rebuild
+    mpc.set_value_function(net)
+    np.testing.assert_array_equal(mpc._vf_theta[-6:], task.theta)
+    # ... and set_robot moves it to another robot: parameters only, no rebuild
+    mpc.set_robot(task.parameters.high)
     np.testing.assert_array_equal(mpc._vf_theta[-6:], task.parameters.high)
+    np.testing.assert_array_equal(net.theta, task.parameters.high)  # the caller's network is not touched
