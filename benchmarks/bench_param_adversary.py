@@ -57,7 +57,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._common import machine  # noqa: E402
-from benchmarks.bench_closed_loop import paired_test  # noqa: E402
+from benchmarks.bench_closed_loop import _train_one, paired_test  # noqa: E402
 from seagul_control.evaluation import PolicySpec, default_horizon, evaluate, heldout_starts  # noqa: E402
 from seagul_envs import make_task  # noqa: E402
 
@@ -120,14 +120,6 @@ class ParamBenchConfig:
         return cls(task=task)
 
 
-def _train_one(cfg: dict[str, Any], out: str) -> str:
-    from seagul_learn.training import TrainConfig, train
-
-    if not (Path(out) / "metrics.json").is_file():
-        train(TrainConfig(**cfg), out, resume=(Path(out) / "config.json").is_file())
-    return out
-
-
 def train_all(bench: ParamBenchConfig, out: Path, workers: int) -> dict[tuple[str, int], Path]:
     """One run per (method, seed), in parallel processes."""
     from joblib import Parallel, delayed
@@ -158,10 +150,7 @@ def robust_validation(task_name: str, run: Path) -> dict[str, float]:
         model_params=True,
     )
     arrays = training_arrays(records, task.nx)
-    network = ValueNetwork.load(run / "network.pt")
-    if not network.n_params:
-        arrays = arrays.__class__(arrays.x, arrays.tau, arrays.value, arrays.grad_x, arrays.solve_index, arrays.knot)
-    mse_initial, mse_all = evaluate(network, arrays)
+    mse_initial, mse_all = evaluate(ValueNetwork.load(run / "network.pt"), arrays)  # a nominal network ignores theta
     return {"mse_initial": mse_initial, "mse_all_knots": mse_all}
 
 

@@ -618,8 +618,10 @@ class LimitedLookaheadMPC(_MPCBase):
         self._estimator_options: dict[str, Any] | None = None
         if estimate_robot is not False:
             self._estimator_options = {} if estimate_robot is True else dict(estimate_robot)
-            ParameterEstimator(task, self.dt, **self._estimator_options)  # bad options fail here, not mid-episode
         self._estimators: dict[int, ParameterEstimator] = {}
+        """One estimator per env (env 0's built here: bad options fail at construction), reset per episode."""
+        if self._estimator_options is not None:
+            self._estimators[0] = ParameterEstimator(task, self.dt, **self._estimator_options)
         self._last_step: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self.horizon = int(horizon)
         self.trust_region: TrustRegion = trust_region
@@ -947,12 +949,14 @@ class LimitedLookaheadMPC(_MPCBase):
     def reset(self) -> None:
         """Forget every warm start and, with ``estimate_robot``, every episode's estimate."""
         super().reset()
-        self._estimators.clear()
+        for estimator in self._estimators.values():
+            estimator.reset()
         self._last_step.clear()
 
     def _forget(self, env_index: int) -> None:
         super()._forget(env_index)
-        self._estimators.pop(env_index, None)
+        if env_index in self._estimators:
+            self._estimators[env_index].reset()
         self._last_step.pop(env_index, None)
 
 

@@ -676,10 +676,6 @@ def make_network(config: TrainConfig, task: Task) -> ValueModel:
     return ValueNetwork(task.nx, config.hidden, task_name=task.name, seed=config.seed, n_params=n_params, theta=theta)
 
 
-def _concat(a: TrainingArrays, b: TrainingArrays) -> TrainingArrays:
-    return a.concat(b)
-
-
 def _make_sampler(config: TrainConfig, task: Task) -> Sampler:
     """The run's sampler over the uniform baseline's starts (and, with ``model_params``, robots) for this seed."""
     pool = StartPool.uniform(
@@ -825,7 +821,7 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
         runner.next_index = int(state["next_index"])
         budget_records = [dataset.read(i) for i in range(config.pretrain_solves, runner.next_index)]
         new = training_arrays(budget_records, task.nx)
-        buffer = _concat(buffer, new)
+        buffer = buffer.concat(new)
     else:
         network.set_normalization(buffer.x, buffer.tau, buffer.value, buffer.theta)
         pre_cfg = replace(config, sobolev_weight=0.0, newest_fraction=0.0)
@@ -862,7 +858,7 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
         budget_records += records
         new = training_arrays(records, task.nx)
         newest = np.arange(len(buffer), len(buffer) + len(new))
-        buffer = _concat(buffer, new)
+        buffer = buffer.concat(new)
         solves, failures = len(budget_records), count_failures(budget_records)
         buffer_solves = config.pretrain_solves + solves
         if config.renormalize:
