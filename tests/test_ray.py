@@ -284,8 +284,12 @@ def test_later_calls_reuse_the_actor_pool(local_ray: Any) -> None:
     handles = list(parallel._RAY_POOL.actors)
     parallel.shutdown_ray_pool()
     assert parallel._RAY_POOL.actors == []
+    # ray.kill is asynchronous: a call submitted right after it may still be served, so poll until the actor is gone.
+    deadline = time.monotonic() + 60
     with pytest.raises(ray.exceptions.RayActorError):
-        ray.get(handles[0].pid.remote(), timeout=60)
+        while time.monotonic() < deadline:
+            ray.get(handles[0].pid.remote(), timeout=60)
+            time.sleep(0.2)
 
 
 def test_two_node_cluster_spreads_the_pool_over_both_nodes() -> None:
