@@ -84,6 +84,12 @@ class ParamBenchConfig:
     trust_region: str = "lqr"
     """The deployed MPC's guard (``LimitedLookaheadMPC``'s default)."""
     jit: bool = True
+    solver: str = "ipopt"
+    """The evaluated MPCs' solver. IPOPT with a wall-time limit per step (``max_step_time``) rather than the deployed
+    default fatrop, which looped without end inside one solve of the nominal MPC on a perturbed robot in the ninth
+    session (over 35 minutes; fatrop has no wall-time limit, docs/closed_loop.md "A solver hang found on the way")."""
+    max_step_time: float = 5.0
+    """IPOPT's ``max_wall_time`` per MPC step (s); a step that hits it falls back as any failed solve does."""
     model_reference: bool = False
     """Also run the full-horizon MPC that plans with the model (slow: its solves on mismatched robots run into
     their iteration limits; the eighth session's pilot measured 10 % of 20 such episodes, docs/spec.md §14.4)."""
@@ -160,7 +166,10 @@ def mpc_options(bench: ParamBenchConfig, estimating: bool) -> tuple[tuple[str, A
         ("horizon", default_horizon(task)),
         ("trust_region", bench.trust_region),
         ("jit", bench.jit),
+        ("solver", bench.solver),
     )
+    if bench.solver == "ipopt":
+        options += (("solver_options", {"ipopt.max_wall_time": bench.max_step_time}),)
     return options + ((("model_params", True), ("estimate_robot", True)) if estimating else ())
 
 
