@@ -2,7 +2,7 @@
 
 Usage::
 
-    .venv/bin/python benchmarks/bench_controllers.py [--task acrobot] [--latency-starts 20] [--quick]
+    .venv/bin/python benchmarks/bench_controllers.py [--task acrobot] [--latency-starts 20] [--quick] [--env ENV_ID]
 
 Rows: the learned limited-lookahead MPC of the closed-loop benchmark (``benchmarks/results/closed_loop.json``: its
 NLP solves, median success over seeds on the grid and the held-out starts, its step latency), LQR and the
@@ -11,10 +11,13 @@ from ``benchmarks/results/rl_baselines.json`` when that file exists (environment
 success over seeds). A row whose source has not been run says so (``null`` in the JSON, "not run" in the table);
 nothing is filled in by hand.
 
+``--env SeagulAcrobotMujoco-v0`` runs every row in that simulator of the task instead (the MuJoCo acrobot): the
+learned row is then the shipped network and the RL rows the shipped models, each evaluated here.
+
 Latency is the controller's own computation per step (the MPCs' solver wall time; LQR's and SB3's ``predict``),
 median and 95th percentile, measured in this process on the first ``--latency-starts`` grid starts with nothing
 else running in it. The table is printed as Markdown on stderr; the last line of stdout is one JSON object
-``{"task", "rows": [{"method", "nlp_solves", "env_steps", "train_wall_s", "grid_success", "heldout_success",
+``{"task", "env", "rows": [{"method", "nlp_solves", "env_steps", "train_wall_s", "grid_success", "heldout_success",
 "median_ms", "p95_ms", "source"}], "machine"}``.
 """
 
@@ -63,26 +66,33 @@ class _Timed:
         return getattr(self.policy, name)
 
 
-def latency(task: Any, spec: PolicySpec, starts: np.ndarray) -> dict[str, float]:
+def latency(task: Any, spec: PolicySpec, starts: np.ndarray, env_id: str | None = None) -> dict[str, float]:
     """Median and p95 of the per-step computation time of ``spec``'s controller over episodes from ``starts``."""
     timed = _Timed(build_policy(task, spec))
     for x0 in starts:
-        run_policy_episode(task, timed, x0)
+        run_policy_episode(task, timed, x0, env_id=env_id)
     ms = np.asarray(timed.times) * 1e3
     return {"median_ms": float(np.median(ms)), "p95_ms": float(np.percentile(ms, 95)), "steps": int(ms.size)}
 
 
 def measured_row(
-    task: Any, method: str, spec: PolicySpec, starts: np.ndarray, n_grid: int, lat: np.ndarray, stored: Path | None
+    task: Any,
+    method: str,
+    spec: PolicySpec,
+    starts: np.ndarray,
+    n_grid: int,
+    lat: np.ndarray,
+    stored: Path | None,
+    env_id: str | None = None,
 ) -> dict:
     """Success on the grid and held-out starts (or, if ``stored`` exists, the stored evaluation of exactly these
-    starts), and latency measured here."""
+    starts), and latency measured here; ``env_id`` runs the episodes in that env of the task."""
     if stored is not None and stored.is_file():
         row = json.loads(stored.read_text())
         grid_success, held_success = row["success_rate"], row["heldout_success_rate"]
         source = f"success: {stored.relative_to(ROOT)}; latency: measured here"
     else:
-        results = evaluate(task, [spec], starts, workers=2, progress=False)
+        results = evaluate(task, [spec], starts, workers=2, progress=False, env_id=env_id)
         grid, held = results[:n_grid], results[n_grid:]
         grid_success = float(np.mean([r.success for r in grid]))
         held_success = float(np.mean([r.success for r in held]))
@@ -94,7 +104,7 @@ def measured_row(
         "train_wall_s": 0.0,
         "grid_success": grid_success,
         "heldout_success": held_success,
-        **latency(task, spec, lat),
+        **latency(task, spec, lat, env_id),
         "source": source,
     }
 
@@ -125,7 +135,9 @@ def learned_row(task_name: str) -> dict[str, Any]:
     }
 
 
-def rl_rows(task_name: str) -> list[dict[str, Any]]:
+def rl_rows(task_name: str, lat: np.ndarray | None = None) -> list[dict[str, Any]]:
+    """PPO/SAC rows from ``rl_baselines.json``; with ``lat`` (starts), the shipped model's ``predict`` latency is
+    measured here, side by side with the other rows."""
     path = RESULTS / "rl_baselines.json"
     data = json.loads(path.read_text()).get(task_name, {}) if path.is_file() else {}
     rows = []
@@ -134,6 +146,11 @@ def rl_rows(task_name: str) -> list[dict[str, Any]]:
         if not block:
             rows.append({"method": algo.upper(), "source": "not run (benchmarks/bench_rl_baselines.py)"})
             continue
+        timing = {"median_ms": block.get("median_ms"), "p95_ms": block.get("p95_ms")}
+        model = ROOT / str(block.get("model", ""))
+        if lat is not None and model.is_file():
+            spec = PolicySpec("sb3", algo, str(model), (("algo", block["algo"]),))
+            timing = latency(make_task(task_name), spec, lat)
         rows.append(
             {
                 "method": f"{algo.upper()} ({block['seeds']} seeds)",
@@ -142,8 +159,8 @@ def rl_rows(task_name: str) -> list[dict[str, Any]]:
                 "train_wall_s": block["train_wall_s"],
                 "grid_success": block["success_rate"],
                 "heldout_success": block["heldout_success_rate"],
-                "median_ms": block.get("median_ms"),
-                "p95_ms": block.get("p95_ms"),
+                "median_ms": timing["median_ms"],
+                "p95_ms": timing["p95_ms"],
                 "source": "benchmarks/results/rl_baselines.json",
             }
         )
@@ -172,26 +189,74 @@ def markdown(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def learned_spec(block: dict[str, Any]) -> PolicySpec:
+    """The shipped network of a ``closed_loop.json`` block, deployed as that benchmark deploys it."""
+    options: list[tuple[str, Any]] = [("horizon", int(block["horizon"])), ("trust_region", block["trust_region"])]
+    if "goal_blend" in block:
+        options.append(("goal_blend", float(block["goal_blend"])))
+    return PolicySpec("mpc", "learned", str(ROOT / block["network"]), tuple(options))
+
+
+def rows_in_env(
+    task: Any, env_id: str, starts: np.ndarray, n_grid: int, lat: np.ndarray, quick: bool
+) -> list[dict[str, Any]]:
+    """Every controller measured in ``env_id`` (another simulator of the task, e.g. the MuJoCo acrobot): the
+    shipped learned network and RL models (one each, not a median over seeds), LQR and the full horizon."""
+    rows = []
+    path = RESULTS / "closed_loop.json"
+    block = json.loads(path.read_text()).get(task.name) if path.is_file() else None
+    if block:
+        row = measured_row(task, "learned", learned_spec(block), starts, n_grid, lat, None, env_id)
+        row.update(method=f"learned {block['horizon']}-step MPC (shipped network)", nlp_solves=int(block["budget"]))
+        rows.append(row)
+    rows.append(measured_row(task, "LQR", PolicySpec("lqr", "lqr"), starts, n_grid, lat, None, env_id))
+    if not quick:
+        rows.append(
+            measured_row(task, "full-horizon MPC", PolicySpec("full", "full"), starts, n_grid, lat, None, env_id)
+        )
+    rl = RESULTS / "rl_baselines.json"
+    data = json.loads(rl.read_text()).get(task.name, {}) if rl.is_file() else {}
+    for algo in ("ppo", "sac"):
+        entry = data.get(algo)
+        model = ROOT / str(entry.get("model", "")) if entry else None
+        if model is None or not model.is_file():
+            continue
+        spec = PolicySpec("sb3", algo, str(model), (("algo", entry["algo"]),))
+        row = measured_row(task, f"{algo.upper()} (shipped model)", spec, starts, n_grid, lat, None, env_id)
+        row.update(env_steps=entry["env_steps"], train_wall_s=entry["train_wall_s"])
+        rows.append(row)
+    return rows
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--task", default="acrobot")
     parser.add_argument("--latency-starts", type=int, default=20, help="grid starts whose steps are timed")
     parser.add_argument("--quick", action="store_true", help="a 3 x 3 grid, 5 held-out starts, no full horizon")
+    parser.add_argument(
+        "--env",
+        default=None,
+        help="run every controller in this env of the task (e.g. SeagulAcrobotMujoco-v0: the MuJoCo physics); "
+        "the learned and RL rows are then the shipped network and models, measured here",
+    )
     args = parser.parse_args(argv)
     task = make_task(args.task)
     grid_starts, _ = start_grid(task, 3 if args.quick else task.profile.grid.points)
     starts = np.vstack([grid_starts, heldout_starts(task, 5 if args.quick else 100)])
     n_grid = grid_starts.shape[0]
     lat = grid_starts[:: max(1, n_grid // max(1, args.latency_starts))][: args.latency_starts]
-    rows = [learned_row(args.task), measured_row(task, "LQR", PolicySpec("lqr", "lqr"), starts, n_grid, lat, None)]
-    if not args.quick:
-        # The closed-loop benchmark's evaluation of the full horizon on these very starts, when committed.
-        stored = RESULTS / "closed_loop_b2000" / "full-horizon.json" if args.task == "acrobot" else None
-        spec = PolicySpec("full", "full")
-        rows.append(measured_row(task, "full-horizon MPC", spec, starts, n_grid, lat, stored))
-    rows += rl_rows(args.task)
+    if args.env:
+        rows = rows_in_env(task, args.env, starts, n_grid, lat, args.quick)
+    else:
+        rows = [learned_row(args.task), measured_row(task, "LQR", PolicySpec("lqr", "lqr"), starts, n_grid, lat, None)]
+        if not args.quick:
+            # The closed-loop benchmark's evaluation of the full horizon on these very starts, when committed.
+            stored = RESULTS / "closed_loop_b2000" / "full-horizon.json" if args.task == "acrobot" else None
+            spec = PolicySpec("full", "full")
+            rows.append(measured_row(task, "full-horizon MPC", spec, starts, n_grid, lat, stored))
+        rows += rl_rows(args.task, lat)
     print(markdown(rows), file=sys.stderr)
-    print(json.dumps({"task": args.task, "rows": rows, "machine": machine()}))
+    print(json.dumps({"task": args.task, "env": args.env or task.profile.env_id, "rows": rows, "machine": machine()}))
     return 0
 
 

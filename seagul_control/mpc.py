@@ -126,6 +126,9 @@ class MPCStepInfo:
     planner's *query* of ``Vhat``), else None."""
     terminal_tau: float = float("nan")
     """Time to go at ``x_n`` (``tau_now - sum(h)``) when :attr:`terminal_state` is set."""
+    terminal_theta: tuple[float, ...] | None = None
+    """The robot the plan (and its value query) was made for, when :attr:`terminal_state` is set and the MPC plans
+    over robots (``model_params``), else None."""
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict (for JSON)."""
@@ -365,13 +368,16 @@ class _MPCBase:
         except Exception as exc:  # a solver exception must not stop a closed loop
             sol, ok = None, False
             status, iters, solve_time, objective = f"exception: {exc}", -1, time.perf_counter() - start, np.nan
-        terminal_state, terminal_tau = None, float("nan")
+        terminal_state, terminal_tau, terminal_theta = None, float("nan"), None
         if ok and sol is not None:
             u = sol.controls[0]
             source = "solver"
             if self._queries_value(theta):
                 terminal_state = tuple(float(v) for v in sol.states[-1])
                 terminal_tau = float(tau - np.sum(sol.steps))
+                if self._robot is not None or getattr(self, "model_params", False):
+                    robot = self.task.theta if self._robot is None else self._robot
+                    terminal_theta = tuple(float(v) for v in robot)
             self._plans[env_index] = _Plan(problem, sol.states, sol.controls, sol.steps, sol.lam_x, sol.lam_g)
         else:
             objective = float("nan")
@@ -388,6 +394,7 @@ class _MPCBase:
             objective=float(objective),
             terminal_state=terminal_state,
             terminal_tau=terminal_tau,
+            terminal_theta=terminal_theta,
         )
         self.stats.append(info)
         return u, info

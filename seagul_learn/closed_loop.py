@@ -33,6 +33,12 @@ looks:
    never trained on. Queries may be restricted to tails whose interval count is a multiple of ``tail_stride``
    (fewer distinct solvers to build; the knots of each tail still cover every shorter time to go).
 
+**Over robots** (``TrainConfig.model_params``: a pool that holds one robot per start): every episode of a round
+runs on its own robot drawn uniformly from Theta (a stream of its own), the collecting MPC is the deployed robust
+one (``LimitedLookaheadMPC(..., model_params=True, estimate_robot=True)``: it plans, and queries the value, for its
+online estimate of the robot), each query is ``(x_n, tau_n, theta_hat)`` with the robot the plan was made for, and
+its tail problem is solved for that robot. The selections measure distances in ``(x, tau, theta)``.
+
 ``uniform_fraction`` of each round's solves are plain uniform draws from X0 at the nominal time to go (the
 baseline's starts), which keep the function right where the episodes begin.
 
@@ -60,6 +66,7 @@ Selection = Literal["farthest", "spread", "lowest", "random"]
 SELECTIONS = ("farthest", "spread", "lowest", "random")
 _STREAM_EPISODE_STARTS = 11
 _STREAM_SELECTION = 12
+_STREAM_EPISODE_ROBOTS = 14
 
 
 @dataclass(frozen=True)
@@ -124,6 +131,8 @@ class Queries:
     """``(q, nx)`` planned terminal states."""
     tau: np.ndarray
     """``(q,)`` their times to go (snapped to the task's step grid for fixed-step tasks)."""
+    theta: np.ndarray | None
+    """``(q, k)`` the robots the plans were made for (an MPC over robots), else None."""
     episodes: int
     """Episodes run."""
     successes: int
@@ -142,24 +151,42 @@ def snap_tau(task: Task, tau: float) -> float:
     return float(round(tau / h) * h)
 
 
-def collect_queries(task: Task, policy: Any, starts: np.ndarray, env_id: str | None = None) -> Queries:
-    """Run ``policy`` (an MPC with ``stats``) from every start and gather its planned terminal states."""
+def collect_queries(
+    task: Task, policy: Any, starts: np.ndarray, env_id: str | None = None, robots: np.ndarray | None = None
+) -> Queries:
+    """Run ``policy`` (an MPC with ``stats``) from every start and gather its planned terminal states.
+
+    ``robots`` (one row of parameters per start): episode ``i`` simulates the robot ``robots[i]``, and each query
+    carries the robot its plan was made for (``MPCStepInfo.terminal_theta``).
+    """
     from seagul_control.evaluation import run_policy_episode
 
+    starts = np.atleast_2d(starts)
+    if robots is not None and len(robots) != starts.shape[0]:
+        raise ValueError(f"collect_queries: {len(robots)} robots for {starts.shape[0]} starts")
     xs: list[tuple[float, ...]] = []
     taus: list[float] = []
+    thetas: list[tuple[float, ...]] = []
     successes = fallbacks = steps = 0
-    for x0 in np.atleast_2d(starts):
-        episode, infos = run_policy_episode(task, policy, x0, env_id=env_id)
+    for i, x0 in enumerate(starts):
+        robot = None if robots is None else robots[i]
+        episode, infos = run_policy_episode(task, policy, x0, env_id=env_id, robot=robot)
         successes += int(episode.success)
         fallbacks += episode.fallbacks
         steps += episode.steps
         for info in infos:
             if info.terminal_state is not None and math.isfinite(info.terminal_tau) and info.terminal_tau > 0:
+                if robots is not None and info.terminal_theta is None:
+                    raise ValueError("collect_queries over robots needs an MPC that plans over robots (model_params)")
                 xs.append(info.terminal_state)
                 taus.append(snap_tau(task, info.terminal_tau))
+                if robots is not None:
+                    thetas.append(info.terminal_theta)
     x = np.array(xs, dtype=np.float64).reshape(-1, task.nx)
-    return Queries(x, np.array(taus, dtype=np.float64), len(np.atleast_2d(starts)), successes, fallbacks, steps)
+    theta = None
+    if robots is not None:
+        theta = np.array(thetas, dtype=np.float64).reshape(x.shape[0], np.asarray(robots).shape[1])
+    return Queries(x, np.array(taus, dtype=np.float64), theta, starts.shape[0], successes, fallbacks, steps)
 
 
 def farthest_first(candidates: np.ndarray, known: np.ndarray, k: int) -> np.ndarray:
@@ -207,6 +234,11 @@ class ClosedLoopSampler:
         self._known_x = np.zeros((0, task.nx))
         self._known_tau = np.zeros(0)
         self._known_value = np.zeros(0)
+        self.robots = pool.thetas is not None
+        """Episodes, queries and tails over robots (a pool over robots, ``TrainConfig.model_params``)."""
+        self._known_theta = np.zeros((0, pool.thetas.shape[1] if pool.thetas is not None else 0))
+        if self.robots and task.parameters is None:
+            raise ValueError(f"{task.name}: a start pool over robots needs a task that declares Task.parameters")
         if task.fixed_step:
             self._check_tails()
 
@@ -233,6 +265,10 @@ class ClosedLoopSampler:
     def observe(self, buffer: TrainingArrays) -> None:
         """The training buffer after a round (the ``"farthest"``/``"lowest"`` selections measure against it)."""
         self._known_x, self._known_tau, self._known_value = buffer.x, buffer.tau, buffer.value
+        if self.robots:
+            if buffer.theta is None:
+                raise ValueError("closed-loop sampler over robots: the training buffer holds no robots")
+            self._known_theta = buffer.theta
 
     # ------------------------------------------------------------------------------------ MPC
     def collector(self, network: ValueModel) -> Any:
@@ -253,6 +289,9 @@ class ClosedLoopSampler:
                 jit=self.options.jit,
                 solver=self.options.solver,  # type: ignore[arg-type]
                 solver_options=extra,
+                # Over robots: the deployed robust MPC, planning (and querying the value) for its estimate.
+                model_params=self.robots,
+                estimate_robot=self.robots,
             )
             self._mpcs[guard] = mpc
         else:
@@ -263,6 +302,14 @@ class ClosedLoopSampler:
         """This round's training starts (uniform over X0; their own random stream)."""
         rng = np.random.default_rng([self.seed, _STREAM_EPISODE_STARTS, self.round])
         return self.task.sample_x0(rng, self.options.episodes)
+
+    def episode_robots(self) -> np.ndarray | None:
+        """This round's simulated robots, one per episode (uniform over Theta; their own stream), or None."""
+        if not self.robots:
+            return None
+        assert self.task.parameters is not None
+        rng = np.random.default_rng([self.seed, _STREAM_EPISODE_ROBOTS, self.round])
+        return self.task.parameters.sample(rng, self.options.episodes).reshape(self.options.episodes, -1)
 
     # ------------------------------------------------------------------------------- selection
     def _eligible(self, queries: Queries) -> np.ndarray:
@@ -285,20 +332,26 @@ class ClosedLoopSampler:
             return np.zeros(0, dtype=np.int64)
         mean = network.in_mean.detach().numpy()
         std = network.in_std.detach().numpy()
-        cand = (np.column_stack([queries.x[eligible], queries.tau[eligible]]) - mean) / std
-        known = (np.column_stack([self._known_x, self._known_tau]) - mean) / std
+        theta = None if queries.theta is None else queries.theta[eligible]
+        cand_cols = [queries.x[eligible], queries.tau[eligible]]
+        known_cols = [self._known_x, self._known_tau]
+        if theta is not None:
+            cand_cols.append(theta)
+            known_cols.append(self._known_theta)
+        cand = (np.column_stack(cand_cols) - mean) / std
+        known = (np.column_stack(known_cols) - mean) / std
         method = self.options.selection
         if method == "random":
             rng = np.random.default_rng([self.seed, _STREAM_SELECTION, self.round])
             picks = rng.permutation(eligible.size)[: min(k, eligible.size)]
         elif method == "spread" and isinstance(network, ValueEnsemble):
-            spread = network.spread(queries.x[eligible], queries.tau[eligible])
+            spread = network.spread(queries.x[eligible], queries.tau[eligible], theta)
             picks = np.argsort(-spread, kind="stable")[: min(k, eligible.size)]
         elif method == "lowest" and known.shape[0]:
             from scipy.spatial import cKDTree
 
             _, nearest = cKDTree(known).query(cand, k=1)
-            vhat = network.predict(queries.x[eligible], queries.tau[eligible])
+            vhat = network.predict(queries.x[eligible], queries.tau[eligible], theta)
             # How far below its nearest known label the network rates the query, farthest-first among ties.
             gap = vhat - self._known_value[np.asarray(nearest)]
             picks = np.argsort(gap, kind="stable")[: min(k, eligible.size)]
@@ -337,7 +390,7 @@ class ClosedLoopSampler:
         if n_tail > 0:
             mpc = self.collector(network)
             entry["collector"] = mpc.trust_region
-            queries = collect_queries(self.task, mpc, self.episode_starts())
+            queries = collect_queries(self.task, mpc, self.episode_starts(), robots=self.episode_robots())
             chosen = self.select(queries, network, n_tail)
             entry.update(
                 episodes=queries.episodes,
@@ -350,10 +403,11 @@ class ClosedLoopSampler:
             n_uniform += n_tail - int(chosen.size)
             self.loop_rounds += 1
             if chosen.size:
-                records += runner.solve(queries.x[chosen], queries.tau[chosen], self.name)
+                thetas = None if queries.theta is None else queries.theta[chosen]
+                records += runner.solve(queries.x[chosen], queries.tau[chosen], self.name, thetas=thetas)
         if n_uniform:
-            starts, taus, _ = self.pool.take(n_uniform)
-            records += runner.solve(starts, taus, "uniform-mix")
+            starts, taus, ids = self.pool.take(n_uniform)
+            records += runner.solve(starts, taus, "uniform-mix", thetas=self.pool.thetas_of(ids))
         entry["uniform"] = int(n_uniform)
         entry["failures"] = int(sum(not r.success for r in records))
         self.log.append(entry)

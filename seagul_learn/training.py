@@ -215,7 +215,9 @@ class TrainConfig:
     all robots, with ``dV/dtheta`` from the duals), the network takes ``theta`` as inputs and is conditioned on the
     task's own values, and the Sobolev term covers x and theta. The uniform sampler is then uniform over
     ``X0 x Theta`` and the adversarial one ascends in theta as well (``adv_ascend_theta``); the validation set draws
-    its robots from Theta with a fixed seed. Not yet with the closed-loop sampler."""
+    its robots from Theta with a fixed seed. The closed-loop sampler then flies every episode on its own robot from
+    Theta with the deployed robust MPC (``model_params=True, estimate_robot=True``) and solves each tail for the
+    robot its plan was made for."""
     adv_ascend_theta: bool = True
     """Adversarial, with ``model_params``: ascend in the robot's parameters too (False: each chain keeps its
     start's robot)."""
@@ -293,11 +295,6 @@ class TrainConfig:
             if task.parameters is None:
                 raise ValueError(
                     f"model_params needs a task with physical parameters (Task.parameters); {task.name} has none"
-                )
-            if self.sampler == "closed-loop":
-                raise ValueError(
-                    "model_params is not available with sampler='closed-loop' yet (its collecting MPC flies one "
-                    "robot); use 'uniform' or 'adversarial'"
                 )
         if not (self.value_cap >= 0 and math.isfinite(self.value_cap)):
             raise ValueError(f"value_cap must be a number >= 0 (0 = off), got {self.value_cap}")

@@ -481,12 +481,15 @@ class ValueEnsemble(nn.Module):
         """The ensemble mean."""
         return torch.stack([m(x, tau, theta) for m in self.members]).mean(dim=0)
 
-    def spread(self, x: Any, tau: Any) -> np.ndarray:
-        """Standard deviation over members at a batch (NumPy)."""
+    def spread(self, x: Any, tau: Any, theta: Any = None) -> np.ndarray:
+        """Standard deviation over members at a batch (NumPy); ``theta``: the robots of an ensemble over robots."""
         with torch.no_grad():
             x_t = torch.as_tensor(np.atleast_2d(np.asarray(x, dtype=np.float64)))
             t_t = torch.tensor(np.broadcast_to(np.asarray(tau, dtype=np.float64).reshape(-1), (x_t.shape[0],)).copy())
-            values = torch.stack([m(x_t, t_t.clone()) for m in self.members])
+            th_t = None
+            if theta is not None:
+                th_t = torch.as_tensor(np.asarray(theta, dtype=np.float64)).reshape(x_t.shape[0], -1)
+            values = torch.stack([m(x_t, t_t.clone(), th_t) for m in self.members])
             return values.std(dim=0, unbiased=False).numpy()
 
     def value_and_grad(self, x: Any, tau: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -214,9 +214,69 @@ def test_uniform_and_adversarial_runs_over_robots_share_the_seeds_pretraining_an
     assert np.all((robots >= TASK.parameters.low) & (robots <= TASK.parameters.high))
 
 
+def _cl_robot_config(tmp_path, **overrides) -> TrainConfig:
+    base = dict(
+        sampler="closed-loop",
+        budget=12,
+        hidden=(8,),
+        cl_episodes=2,
+        cl_horizon=2,
+        cl_jit=False,
+        cl_uniform_fraction=0.34,
+        cl_uniform_solves=0,
+        cl_warmup_rounds=0,
+        cl_trust_region="none",
+        validate=False,
+    )
+    base.update(overrides)
+    return _robot_config(tmp_path, **base)
+
+
+def test_the_closed_loop_sampler_over_robots_flies_each_episode_on_its_robot_and_solves_tails_for_the_plans_robot(
+    tmp_path,
+):
+    cfg = _cl_robot_config(tmp_path)
+    toy = ToyRobotSolver(TASK)
+    ref = train(cfg, tmp_path / "ref", batch_solver=toy, solver_name="toy")
+    budget = [r for r in ref.dataset.records() if r.sampler != "pretrain"]
+    assert len(budget) == 12 == ref.num_solves
+    tails = [r for r in budget if r.sampler == "closed-loop"]
+    assert tails and len([r for r in budget if r.sampler == "uniform-mix"]) == 2 * round(0.34 * 6)
+    space = TASK.parameters
+    thetas = np.array([r.theta for r in tails])
+    assert np.all((thetas >= space.low - 1e-12) & (thetas <= space.high + 1e-12))
+    # the collecting MPC plans for its online estimate: past the first step, the plans' robots leave the model's
+    assert np.any(np.abs(thetas - TASK.theta).max(axis=1) > 1e-6)
+    assert ref.network.n_params == space.size
+    # interrupted after 9 solves, the run resumes to the same records and network
+    crashing = ToyRobotSolver(TASK, raise_after=9)
+    with pytest.raises(KeyboardInterrupt):
+        train(cfg, tmp_path / "run", batch_solver=crashing, solver_name="toy")
+    resumed = train(cfg, tmp_path / "run", resume=True, batch_solver=ToyRobotSolver(TASK), solver_name="toy")
+    for a, b in zip(ref.dataset.records(), resumed.dataset.records(), strict=True):
+        np.testing.assert_array_equal(a.theta, b.theta)
+        np.testing.assert_array_equal(a.x_init, b.x_init)
+    np.testing.assert_array_equal(ref.network.casadi_parameters(), resumed.network.casadi_parameters())
+
+
+def test_collect_queries_over_robots_records_the_robot_of_each_plan_and_needs_an_mpc_over_robots():
+    from seagul_control import LimitedLookaheadMPC
+    from seagul_learn.closed_loop import collect_queries
+
+    starts = TASK.sample_x0(np.random.default_rng(3), 1)
+    robots = TASK.parameters.sample(np.random.default_rng(4), 1).reshape(1, -1)
+    net = ValueNetwork(TASK.nx, (8,), seed=3, n_params=TASK.parameters.size, theta=TASK.theta, task_name="acrobot")
+    mpc = LimitedLookaheadMPC(TASK, net, 2, jit=False, trust_region="none", model_params=True, estimate_robot=True)
+    q = collect_queries(TASK, mpc, starts, robots=robots)
+    assert q.theta is not None and q.theta.shape == (q.x.shape[0], TASK.parameters.size)
+    np.testing.assert_allclose(q.theta[0], TASK.theta)  # the first plan: the estimate starts at the model
+    assert np.abs(q.theta[-1] - TASK.theta).max() > 1e-6  # later ones: the estimate of the simulated robot
+    plain = LimitedLookaheadMPC(TASK, ValueNetwork(TASK.nx, (8,), seed=3), 2, jit=False, trust_region="none")
+    with pytest.raises(ValueError, match="needs an MPC that plans over robots"):
+        collect_queries(TASK, plain, starts, robots=robots)
+
+
 def test_model_params_needs_parameters_and_a_sampler_that_takes_robots():
-    with pytest.raises(ValueError, match="not available with sampler='closed-loop'"):
-        TrainConfig(task="acrobot", sampler="closed-loop", model_params=True)
     fixed = dataclasses.replace(TASK, parameters=None)
     with pytest.raises(ValueError, match="model_params needs a task with physical parameters"):
         TrainConfig(task=fixed, sampler="uniform", model_params=True)
@@ -253,3 +313,17 @@ def test_solve_many_solves_each_start_for_its_robot_like_the_optimizer_and_in_an
         solve_many(TASK, pool.starts, thetas=pool.thetas[:, :2], progress=False)
     with pytest.raises(ValueError, match="NaN or inf"):
         solve_many(TASK, pool.starts, thetas=np.full((3, 6), np.nan), progress=False)
+
+
+def test_an_ensemble_over_robots_measures_its_spread_at_the_robots_it_is_given():
+    from seagul_learn.value_network import ValueEnsemble
+
+    k = TASK.parameters.size
+    ens = ValueEnsemble(TASK.nx, (8,), members=3, seed=1, n_params=k, theta=TASK.theta, task_name="acrobot")
+    x = TASK.sample_x0(np.random.default_rng(0), 4)
+    tau = np.full(4, 2.0)
+    robots = TASK.parameters.sample(np.random.default_rng(1), 4).reshape(4, k)
+    spread = ens.spread(x, tau, robots)
+    by_hand = np.std([m.predict(x, tau, robots) for m in ens.members], axis=0)
+    np.testing.assert_allclose(spread, by_hand, rtol=1e-10)
+    assert not np.allclose(spread, ens.spread(x, tau, np.tile(TASK.theta, (4, 1))))
