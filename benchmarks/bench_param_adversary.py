@@ -3,7 +3,7 @@
 Usage::
 
     .venv/bin/python benchmarks/bench_param_adversary.py [--quick] [--tasks acrobot] [--seeds N] [--budget B]
-        [--starts N] [--workers 2] [--out DIR] [--update FILE]
+        [--starts N] [--workers 2] [--out DIR] [--update FILE] [--closed-loop] [--model-reference]
 
 Per task and seed (paired: the three runs of a seed share their pretraining solves, their pool of starts and, for
 the two runs over robots, the robots of those starts), at equal solves:
@@ -11,7 +11,9 @@ the two runs over robots, the robots of those starts), at equal solves:
 * ``adversarial``: ``TrainConfig(sampler="adversarial", model_params=True)``: paper Alg. 1's ascent over
   ``(x, theta)`` in ``X0 x Theta`` on ``1/2 (V - Vhat)^2``, with ``dV/dtheta`` from the duals;
 * ``uniform``: ``sampler="uniform", model_params=True``: uniform over ``X0 x Theta``;
-* ``nominal``: ``sampler="uniform"`` on the model's robot only (``Vhat(x, tau)``).
+* ``nominal``: ``sampler="uniform"`` on the model's robot only (``Vhat(x, tau)``);
+* ``closed-loop`` (``--closed-loop``): the closed-loop sampler over robots (``CLOSED_LOOP``): its episodes fly
+  robots from Theta under the deployed robust MPC and its tails are solved for the robots of the plans.
 
 Each network is scored on
 
@@ -66,6 +68,16 @@ METHODS: dict[str, dict[str, Any]] = {
     "uniform": {"sampler": "uniform", "model_params": True},
     "nominal": {"sampler": "uniform", "model_params": False},
 }
+#: ``--closed-loop`` adds the closed-loop sampler over robots: a third of the budget uniform over X0 x Theta, then
+#: rounds whose 5 episodes each fly their own robot from Theta under the deployed robust MPC (``"lqr"`` guard,
+#: online estimate), with the tails of their queries solved for the robots of the plans.
+CLOSED_LOOP: dict[str, Any] = {
+    "sampler": "closed-loop",
+    "model_params": True,
+    "cl_episodes": 5,
+    "cl_warmup_rounds": 1,
+    "cl_trust_region": "lqr",
+}
 ROBOT_SEED = 20261202
 """Seed of the robots the closed-loop starts are simulated on (the same for every method, seed and run)."""
 FD_SEED = 7
@@ -90,6 +102,8 @@ class ParamBenchConfig:
     session (over 35 minutes; fatrop has no wall-time limit, docs/closed_loop.md "A solver hang found on the way")."""
     max_step_time: float = 5.0
     """IPOPT's ``max_wall_time`` per MPC step (s); a step that hits it falls back as any failed solve does."""
+    closed_loop: bool = False
+    """Also train and evaluate the closed-loop sampler over robots (``CLOSED_LOOP``; ``--closed-loop``)."""
     model_reference: bool = False
     """Also run the full-horizon MPC that plans with the model (slow: its solves on mismatched robots run into
     their iteration limits; the eighth session's pilot measured 10 % of 20 such episodes, docs/spec.md §14.4)."""
@@ -103,6 +117,13 @@ class ParamBenchConfig:
             "adv_max_steps": 5,
         }
     )
+
+    def methods(self) -> dict[str, dict[str, Any]]:
+        """The trained methods and their TrainConfig settings."""
+        # A third of the budget uniform (100 of the default 300 solves), then closed-loop rounds.
+        settings = {**CLOSED_LOOP, "cl_uniform_solves": self.budget // 3, "cl_jit": self.jit}
+        extra = {"closed-loop": settings} if self.closed_loop else {}
+        return {**METHODS, **extra}
 
     @classmethod
     def for_task(cls, task: str, quick: bool) -> ParamBenchConfig:
@@ -132,7 +153,7 @@ def train_all(bench: ParamBenchConfig, out: Path, workers: int) -> dict[tuple[st
 
     jobs = {}
     for seed in range(bench.seeds):
-        for method, settings in METHODS.items():
+        for method, settings in bench.methods().items():
             cfg = {"task": bench.task, **bench.train, **settings, "budget": bench.budget, "seed": seed}
             jobs[(method, seed)] = ({**cfg, "progress": False}, str(out / "train" / f"{method}-seed{seed}"))
     Parallel(n_jobs=workers)(delayed(_train_one)(*job) for job in jobs.values())
@@ -169,7 +190,8 @@ def mpc_options(bench: ParamBenchConfig, estimating: bool) -> tuple[tuple[str, A
         ("solver", bench.solver),
     )
     if bench.solver == "ipopt":
-        options += (("solver_options", {"ipopt.max_wall_time": bench.max_step_time}),)
+        # as pairs: a PolicySpec is hashable (the evaluator caches built policies by it)
+        options += (("solver_options", (("ipopt.max_wall_time", bench.max_step_time),)),)
     return options + ((("model_params", True), ("estimate_robot", True)) if estimating else ())
 
 
@@ -244,9 +266,10 @@ def run_task(bench: ParamBenchConfig, out: Path, workers: int) -> dict[str, Any]
     if bench.model_reference:
         refs["full_horizon_model"] = PolicySpec("full", "full horizon (model)")
     reference = {k: closed_loop(bench, s, starts, robots, workers, ev / f"{k}.json") for k, s in refs.items()}
-    per_seed: dict[str, list[dict[str, Any]]] = {m: [] for m in (*METHODS, "nominal_estimate")}
+    methods = bench.methods()
+    per_seed: dict[str, list[dict[str, Any]]] = {m: [] for m in (*methods, "nominal_estimate")}
     for seed in range(bench.seeds):
-        for method in METHODS:
+        for method in methods:
             run = runs[(method, seed)]
             net = str(run / "network.pt")
             spec = PolicySpec("mpc", method, net, mpc_options(bench, estimating=method != "nominal"))
@@ -280,7 +303,7 @@ def run_task(bench: ParamBenchConfig, out: Path, workers: int) -> dict[str, Any]
         "full_horizon_model_success_rate": reference.get("full_horizon_model", {}).get("success_rate", float("nan")),
         "lqr_success_rate": reference["lqr"]["success_rate"],
         "validation": {
-            m: {"mse_initial": med(m, "mse_initial"), "mse_all_knots": med(m, "mse_all_knots")} for m in METHODS
+            m: {"mse_initial": med(m, "mse_initial"), "mse_all_knots": med(m, "mse_all_knots")} for m in methods
         },
         "paired_adversarial_minus_uniform": {
             "success_rate": paired_test(col("adversarial"), col("uniform")),
@@ -291,6 +314,14 @@ def run_task(bench: ParamBenchConfig, out: Path, workers: int) -> dict[str, Any]
             "mse_initial_reduction": paired_test(col("uniform", "mse_initial"), col("adversarial", "mse_initial")),
         },
         "paired_adversarial_minus_nominal": {"success_rate": paired_test(col("adversarial"), col("nominal"))},
+        **(
+            {
+                "closed_loop_success_rate": med("closed-loop"),
+                "paired_closed_loop_minus_uniform": {"success_rate": paired_test(col("closed-loop"), col("uniform"))},
+            }
+            if "closed-loop" in methods
+            else {}
+        ),
         "per_seed": {m: [{k: v for k, v in r.items() if k != "success"} for r in rows] for m, rows in per_seed.items()},
         "deployed": {
             "learned": "LimitedLookaheadMPC(task, net, horizon, trust_region, model_params=True, estimate_robot=True)",
@@ -315,6 +346,9 @@ def plot(block: dict[str, Any], path: Path, task_name: str) -> None:
     fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
     learned = ["adversarial", "uniform", "nominal_estimate", "nominal"]
     labels = ["adversarial\nover Theta", "uniform\nover Theta", "nominal net\n+ estimate", "nominal net\n(model)"]
+    if "closed-loop" in block["per_seed"]:
+        learned.insert(2, "closed-loop")
+        labels.insert(2, "closed-loop\nover Theta")
     refs = [("lqr", "LQR\n(model)"), ("full_horizon", "full horizon\n(true robot)")]
     per_seed = block["per_seed"]
     for i, m in enumerate(learned):
@@ -327,11 +361,12 @@ def plot(block: dict[str, Any], path: Path, task_name: str) -> None:
     ax.set_ylabel(f"success over {block['starts']} starts x robots")
     ax.set_ylim(0, 1.05)
     ax.set_title(f"{task_name}: robust closed loop, {block['budget']} solves per network")
-    for i, m in enumerate(("adversarial", "uniform", "nominal")):
+    trained = [m for m in ("adversarial", "uniform", "closed-loop", "nominal") if m in per_seed]
+    for i, m in enumerate(trained):
         values = [r["mse_all_knots"] for r in per_seed[m]]
         bx.plot(np.full(len(values), i), values, "o", color="C0" if m != "nominal" else "C7")
         bx.plot([i - 0.2, i + 0.2], [np.median(values)] * 2, "k-")
-    bx.set_xticks(range(3), ["adversarial\nover Theta", "uniform\nover Theta", "nominal"])
+    bx.set_xticks(range(len(trained)), [m if m == "nominal" else f"{m}\nover Theta" for m in trained])
     bx.set_yscale("log")
     bx.set_ylabel("validation mse_all_knots over robots")
     bx.set_title("value error over X0 x Theta (seeds)")
@@ -354,6 +389,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", default=None, help="work directory (default /tmp/seagul-bench-param-adversary)")
     parser.add_argument("--model-reference", action="store_true", help="also the full-horizon MPC on the model (slow)")
+    parser.add_argument("--closed-loop", action="store_true", help="also the closed-loop sampler over robots")
     parser.add_argument("--update", default=None, metavar="JSON", help="also merge the result into this file")
     parser.add_argument("--figure", default=None, metavar="PNG", help="write the figure of the first task here")
     args = parser.parse_args(argv)
@@ -366,6 +402,7 @@ def main(argv: list[str] | None = None) -> int:
             if getattr(args, name) is not None:
                 setattr(bench, name, int(getattr(args, name)))
         bench.model_reference = bool(args.model_reference)
+        bench.closed_loop = bool(args.closed_loop)
         result[task] = run_task(bench, out / task, args.workers)
         if args.figure and len(result) == 1:
             plot(result[task], Path(args.figure), task)
