@@ -59,6 +59,7 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._common import machine  # noqa: E402
+from benchmarks.bench_closed_loop import FULL_TRAIN as CLOSED_LOOP_TRAIN  # noqa: E402
 from benchmarks.bench_closed_loop import _train_one, paired_test  # noqa: E402
 from seagul_control.evaluation import PolicySpec, default_horizon, evaluate, heldout_starts  # noqa: E402
 from seagul_envs import make_task  # noqa: E402
@@ -71,12 +72,16 @@ METHODS: dict[str, dict[str, Any]] = {
 #: ``--closed-loop`` adds the closed-loop sampler over robots: a third of the budget uniform over X0 x Theta, then
 #: rounds whose 5 episodes each fly their own robot from Theta under the deployed robust MPC (``"lqr"`` guard,
 #: online estimate), with the tails of their queries solved for the robots of the plans.
+#: Its labels are handled as bench_closed_loop's recipe handles closed-loop tails (``FULL_TRAIN``: labels capped at
+#: 50, extreme gradient labels dropped, the standardisation following the buffer, a fresh 20 k-step refit at the end);
+#: without them one seed's tails (values up to ~1e4) gave validation errors 50-2,000x the uniform network's.
 CLOSED_LOOP: dict[str, Any] = {
     "sampler": "closed-loop",
     "model_params": True,
     "cl_episodes": 5,
     "cl_warmup_rounds": 1,
     "cl_trust_region": "lqr",
+    **{k: CLOSED_LOOP_TRAIN[k] for k in ("value_cap", "grad_label_max", "renormalize", "refit_steps")},
 }
 ROBOT_SEED = 20261202
 """Seed of the robots the closed-loop starts are simulated on (the same for every method, seed and run)."""
@@ -343,7 +348,7 @@ def plot(block: dict[str, Any], path: Path, task_name: str) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, (ax, bx) = plt.subplots(1, 2, figsize=(11, 4), constrained_layout=True)
+    fig, (ax, bx) = plt.subplots(1, 2, figsize=(13, 4.2), constrained_layout=True)
     learned = ["adversarial", "uniform", "nominal_estimate", "nominal"]
     labels = ["adversarial\nover Theta", "uniform\nover Theta", "nominal net\n+ estimate", "nominal net\n(model)"]
     if "closed-loop" in block["per_seed"]:
