@@ -18,8 +18,8 @@ pendulum): episodes are 50 (acrobot) or ~32 (glider) steps and the terminal cost
 observation normalisation (``VecNormalize``) for both and reward normalisation for PPO, because a diverging acrobot
 costs up to 1e5 per step while balancing costs ~1e-3. SAC's ``learning_starts`` is 1,000 (zoo: 10,000): SAC
 budgets here are 20-40 k steps (each step is a gradient update, ~10-20 ms on one core), and 10 k random steps would
-be a third to half of them; 1,000 steps are still 20-30 random episodes. The sweep in ``benchmarks/bench_rl_baselines.py`` varies the
-settings that matter (learning rate, discount, network size).
+be a third to half of them; 1,000 steps are still 20-30 random episodes. The sweep in
+``benchmarks/bench_rl_baselines.py`` varies the settings that matter (learning rate, discount, network size).
 """
 
 from __future__ import annotations

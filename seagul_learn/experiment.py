@@ -252,11 +252,16 @@ class ExperimentConfig:
     ``vecnormalize.pkl`` beside it, if any), labelled ``<algo>[<parent directory>]`` in the tables."""
     sb3_algo: str = "PPO"
     """The stable-baselines3 algorithm class of every ``sb3_models`` entry: ``"PPO"`` or ``"SAC"``."""
+    envs: tuple[str, ...] = ()
+    """Other Gymnasium envs of the task (e.g. ``SeagulAcrobotMujoco-v0``, the MuJoCo acrobot) in which the final
+    networks, LQR and the SB3 models also run on the main grid; the report's "Other simulators" section puts each
+    controller's success in every simulator side by side."""
 
     def __post_init__(self) -> None:
         # experiment.json stores the tuple as a JSON list; a single path given as a string is one model.
         models = self.sb3_models
         self.sb3_models = (str(models),) if isinstance(models, str | os.PathLike) else tuple(str(m) for m in models)
+        self.envs = (self.envs,) if isinstance(self.envs, str) else tuple(str(e) for e in self.envs)
 
     def validate(self) -> None:
         """Raise a ValueError naming the first bad field."""
@@ -281,6 +286,14 @@ class ExperimentConfig:
                 raise ValueError(f"SB3 model {path!r} is given twice in sb3_models")
             seen.add(Path(path).resolve())
         self.sb3_policies()  # the labels can be made
+        from seagul_control.evaluation import check_env_task
+
+        for env_id in self.envs:
+            if env_id == task.profile.env_id:
+                raise ValueError(f"envs: {env_id!r} is the task's own env, where every controller already runs")
+            check_env_task(task, env_id)
+        if len(set(self.envs)) != len(self.envs):
+            raise ValueError(f"envs lists an env twice: {list(self.envs)}")
 
     def sb3_policies(self) -> list[tuple[str, str, str]]:
         """``(label, path, algo)`` of every SB3 model to evaluate: ``ppo_model`` (label ``"PPO"``), then each of
@@ -440,6 +453,8 @@ class Experiment:
         runs = self._timed("training", self.train_all)
         learning = self._timed("comparison", lambda: self.compare(runs))
         closed_loop = self._timed("closed-loop evaluation", self.evaluate_closed_loop)
+        if self.config.envs:
+            closed_loop["other_envs"] = self._timed("other simulators", self.evaluate_other_envs)
         self.timings.setdefault("total", time.perf_counter() - start)
         report = self.write_report(runs, learning, closed_loop)
         self._save_state()
@@ -609,11 +624,15 @@ class Experiment:
             main.append(PolicySpec("sb3", label, path, (("algo", algo),)))
         return main, [PolicySpec("full", "full-horizon MPC")]
 
-    def _episodes(self, spec: Any, starts: np.ndarray, record: bool, record_queries: bool = False) -> list[Any]:
-        """One policy's episodes, from its stored table if a previous (interrupted) run finished it."""
+    def _episodes(
+        self, spec: Any, starts: np.ndarray, record: bool, record_queries: bool = False, env_id: str | None = None
+    ) -> list[Any]:
+        """One policy's episodes (in ``env_id``, else the task's env), from its stored table if a previous
+        (interrupted) run finished it."""
         from seagul_control.evaluation import EpisodeResult, evaluate
 
-        path = self.out / "closed_loop" / "episodes" / f"{_slug(spec.name)}.json"
+        folder = self.out / "closed_loop" / ("episodes" if env_id is None else f"episodes_{_slug(env_id)}")
+        path = folder / f"{_slug(spec.name)}.json"
         if path.is_file():
             return [EpisodeResult(**row) for row in json.loads(path.read_text())]
         results = evaluate(
@@ -624,6 +643,7 @@ class Experiment:
             self.config.progress,
             record,
             record_queries=record_queries,
+            env_id=env_id,
         )
         path.parent.mkdir(parents=True, exist_ok=True)
         atomic_write_text(path, json.dumps([asdict(r) for r in results], allow_nan=True))
@@ -755,6 +775,34 @@ class Experiment:
             "figures": figures,
         }
 
+    def evaluate_other_envs(self) -> dict[str, Any]:
+        """Every final network of every seed, LQR and the SB3 models on the main grid in each of ``config.envs``
+        (the same starts as in the task's env). Writes ``closed_loop/other_envs.json``: per controller (a method's
+        seeds pooled into their median), its success in the task's env and in each other env."""
+        from seagul_control.evaluation import start_grid
+
+        starts, _ = start_grid(self.task, self.preset.grid_points)
+        own = self.task.profile.env_id or self.task.name
+        finals = [lp for lp in self.learned_policies() if lp.final]
+        main_specs, _ = self.baseline_specs()
+        rows: dict[str, dict[str, Any]] = {}
+        for env_id in (None, *self.config.envs):
+            column = own if env_id is None else env_id
+            per_method: dict[str, list[float]] = {}
+            for lp in finals:
+                rate = _success_rate(self._episodes(lp.spec, starts, False, record_queries=False, env_id=env_id))
+                per_method.setdefault(lp.method, []).append(rate)
+            for method, rates in per_method.items():
+                row = rows.setdefault(f"{method_label(method)} MPC", {"seeds": len(rates)})
+                row[column] = _nanmedian(rates)
+            for spec in main_specs:
+                rows.setdefault(spec.name, {"seeds": 1})[column] = _success_rate(
+                    self._episodes(spec, starts, False, env_id=env_id)
+                )
+        result = {"envs": [own, *self.config.envs], "grid_points": self.preset.grid_points, "rows": rows}
+        atomic_write_text(self.out / "closed_loop" / "other_envs.json", json.dumps(result, indent=2, allow_nan=True))
+        return result
+
     def _grid_outputs(self, name: str, results: list[Any], shown: list[Any], grid: dict[str, Any]) -> dict[str, Path]:
         """Tables of every episode on one grid (queries left out) and the heatmap of the ``shown`` policies."""
         from seagul_learn.report import plot_heatmaps, write_outputs
@@ -848,6 +896,7 @@ class Experiment:
                 ],
                 closed_loop["figures"],
             ),
+            *([_other_envs_section(closed_loop["other_envs"], p.seeds)] if "other_envs" in closed_loop else []),
             Section(
                 "Solver failures",
                 [
@@ -876,6 +925,26 @@ class Experiment:
         ]
         title = f"Learning value functions for MPC ({', '.join(method_label(m) for m in p.methods)}): {self.task.name}"
         return write_report(self.out, title, sections)
+
+
+def _other_envs_section(other: Mapping[str, Any], seeds: int) -> Any:
+    """The report's table of every controller's grid success in each simulator of the task."""
+    from seagul_learn.report import Section, Table
+
+    envs = list(other["envs"])
+    rows = [[name, *(_pct(row.get(e, math.nan)) for e in envs)] for name, row in other["rows"].items()]
+    return Section(
+        "Other simulators",
+        [
+            f"The same controllers from the same {other['grid_points']} x {other['grid_points']} grid starts, "
+            f"simulated in each env of the task: `{envs[0]}` (the task's own, where they were trained and "
+            "evaluated above) and " + ", ".join(f"`{e}`" for e in envs[1:]) + ". Learned methods: the median "
+            f"over their {seeds} seeds' final networks. A controller that transfers keeps its success; the "
+            "difference between the columns is the model mismatch of the simulators (for the MuJoCo acrobot: "
+            "MuJoCo's RK4 integration of the same MJCF dynamics)."
+        ],
+        [Table(["controller", *[f"success in {e}" for e in envs]], rows)],
+    )
 
 
 def _train_one(config: Any, out: Path, cache: Path, workers: int = 1, backend: str = "local") -> None:

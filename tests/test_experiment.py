@@ -26,7 +26,8 @@ def smoke_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
 
     stdout = io.StringIO()
     with contextlib.redirect_stdout(stdout):
-        code = main(["reproduce", "acrobot", "--preset", "smoke", "--out", str(out), "--workers", "1", "--no-progress"])
+        argv = ["reproduce", "acrobot", "--preset", "smoke", "--out", str(out), "--workers", "1", "--no-progress"]
+        code = main([*argv, "--envs", "SeagulAcrobotMujoco-v0"])
     assert code == 0
     return out, stdout.getvalue()
 
@@ -93,6 +94,36 @@ def test_summary_has_per_seed_statistics_of_every_method(smoke_run: tuple[Path, 
         assert (out / "train" / f"closed-loop-seed{seed}" / "network_2.pt").is_file()
     text = (out / "report.md").read_text()
     assert "query error" in text and "](success_vs_solves.png)" in text
+
+
+def test_report_shows_the_controllers_in_both_simulators(smoke_run: tuple[Path, str]) -> None:
+    """``--envs SeagulAcrobotMujoco-v0``: the final networks and LQR also run in the MuJoCo acrobot, from the same
+    grid starts; the report has a column per simulator."""
+    out, _ = smoke_run
+    other = json.loads((out / "closed_loop" / "other_envs.json").read_text())
+    assert other["envs"] == ["SeagulAcrobot-v0", "SeagulAcrobotMujoco-v0"]
+    assert set(other["rows"]) == {"SEAGuL MPC", "uniform MPC", "closed-loop MPC", "LQR"}
+    summary = json.loads((out / "closed_loop" / "summary.json").read_text())
+    # The task's own column is the main evaluation's (LQR: one policy; the methods: the median over seeds).
+    assert other["rows"]["LQR"]["SeagulAcrobot-v0"] == summary["baselines"]["LQR"]
+    for row in other["rows"].values():
+        assert 0.0 <= row["SeagulAcrobotMujoco-v0"] <= 1.0
+    stored = list((out / "closed_loop" / "episodes_seagulacrobotmujoco-v0").glob("*.json"))
+    assert len(stored) == 2 * 3 + 1  # every seed's final network of the three methods, and LQR
+    episodes = json.loads((out / "closed_loop" / "episodes_seagulacrobotmujoco-v0" / "lqr.json").read_text())
+    own = json.loads((out / "closed_loop" / "episodes" / "lqr.json").read_text())
+    assert [e["start"] for e in episodes] == [e["start"] for e in own]  # the same starts
+    text = (out / "report.md").read_text()
+    assert "## Other simulators" in text and "| success in SeagulAcrobotMujoco-v0 |" in text
+
+
+def test_other_envs_must_simulate_the_task() -> None:
+    with pytest.raises(ValueError, match="not 'acrobot'"):
+        ExperimentConfig(preset="smoke", envs=("SeagulGlider-v0",)).validate()
+    with pytest.raises(ValueError, match="the task's own env"):
+        ExperimentConfig(preset="smoke", envs=("SeagulAcrobot-v0",)).validate()
+    with pytest.raises(ValueError, match="unknown env id 'Nope-v0'"):
+        ExperimentConfig(preset="smoke", envs=("Nope-v0",)).validate()
 
 
 def test_reproduce_refuses_to_overwrite_and_checks_resume_dir(smoke_run: tuple[Path, str], tmp_path: Path) -> None:
