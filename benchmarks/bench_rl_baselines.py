@@ -84,7 +84,11 @@ def _run(config: SB3Config, out: Path, n_grid: int = 0, n_heldout: int = 100) ->
     and the held-out starts."""
     done = out / "result.json"
     if done.is_file():
-        return json.loads(done.read_text())
+        stored = json.loads(done.read_text())
+        if stored.get("config") == json.loads(json.dumps(config.to_dict())):
+            return stored
+        # Another config's run (e.g. a different budget) in this directory: train this one afresh.
+        shutil.rmtree(out)
     from seagul_control.evaluation import SB3Policy, start_grid
     from seagul_learn.baselines import task_of_env
 
