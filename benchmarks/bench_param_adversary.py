@@ -4,6 +4,7 @@ Usage::
 
     .venv/bin/python benchmarks/bench_param_adversary.py [--quick] [--tasks acrobot] [--seeds N] [--budget B]
         [--starts N] [--workers 2] [--out DIR] [--update FILE] [--closed-loop] [--model-reference]
+        [--report-from JSON]
 
 Per task and seed (paired: the three runs of a seed share their pretraining solves, their pool of starts and, for
 the two runs over robots, the robots of those starts), at equal solves:
@@ -31,8 +32,10 @@ Beside them on the same starts and robots: LQR on the model, the full-horizon MP
 (``FullHorizonMPC(model_params=True)``, ``set_robot``; the upper reference). The dual ``dV/dtheta`` is checked
 against central finite differences of re-solved values at random ``(x, theta)``.
 
-Every stage is stored under ``--out`` (training checkpoints, one JSON per evaluation), so a re-run continues.
-The last line of stdout is one JSON object (the full run's is committed as
+Every run also writes ``report.md``/``report.html`` into ``--out`` (the figure, success per controller and seed,
+validation, paired tests); ``--report-from benchmarks/results/param_adversary.json --out DIR`` writes the report of
+a stored result without running anything. Every stage is stored under ``--out`` (training checkpoints, one JSON
+per evaluation), so a re-run continues. The last line of stdout is one JSON object (the full run's is committed as
 ``benchmarks/results/param_adversary.json``)::
 
     {"acrobot": {"theta_box": {...}, "seeds": int, "budget": int, "adversarial_success_rate": float,
@@ -384,6 +387,87 @@ def _solves(run: Path) -> int:
     return int(metrics[-1]["solves"])
 
 
+#: Rows of the report's closed-loop table: (per_seed key, label).
+REPORT_ROWS = (
+    ("adversarial", "adversarial network over robots, estimating MPC"),
+    ("uniform", "uniform network over robots, estimating MPC"),
+    ("closed-loop", "closed-loop sampler over robots, estimating MPC"),
+    ("nominal_estimate", "nominal network, estimating MPC"),
+    ("nominal", "nominal network, MPC on the model"),
+)
+
+
+def _pct(value: float) -> str:
+    return "n/a" if not np.isfinite(value) else f"{100 * value:.1f} %"
+
+
+def write_bench_report(result: dict[str, Any], out: Path) -> Path:
+    """``report.md``/``report.html`` in ``out``: per task the figure, closed-loop success per controller and seed,
+    validation over ``X0 x Theta``, the seed-paired tests and the dual-gradient check."""
+    from seagul_learn.report import Section, Table, write_report
+
+    sections = []
+    for task, block in result.items():
+        if task == "machine":
+            continue
+        figure = out / task / "robust.png"
+        figure.parent.mkdir(parents=True, exist_ok=True)
+        plot(block, figure, task)
+        per_seed = block["per_seed"]
+        seeds = int(block["seeds"])
+        rows = []
+        for key, label in REPORT_ROWS:
+            if key in per_seed:
+                rates = [r["success_rate"] for r in per_seed[key]]
+                rows.append([label, *(_pct(r) for r in rates), _pct(float(np.median(rates)))])
+        for key, label in (("lqr", "LQR on the model"), ("full_horizon", "full-horizon MPC that knows the robot")):
+            rows.append([label, *([""] * seeds), _pct(block[f"{key}_success_rate"])])
+        validation = [
+            [m, f"{v['mse_initial']:.3g}", f"{v['mse_all_knots']:.3g}"] for m, v in block["validation"].items()
+        ]
+        paired = [
+            [
+                name.removeprefix("paired_").replace("_", " "),
+                metric,
+                t["median_difference"],
+                t["wins"],
+                t["losses"],
+                t["p"],
+            ]
+            for name, tests in block.items()
+            if name.startswith("paired_")
+            for metric, t in tests.items()
+        ]
+        sections.append(
+            Section(
+                f"{task}: robots that are not the model",
+                [
+                    f"{block['starts']} held-out X0 starts, each simulated on its own robot drawn from Theta "
+                    f"({', '.join(f'`{k}` {lo:g}-{hi:g}' for k, (lo, hi) in block['theta_box'].items())}); the same "
+                    f"starts and robots for every controller and seed. {seeds} paired seeds, {block['budget']} solves "
+                    f"per network. Learned MPCs: `{block['deployed']['learned']}`; options "
+                    f"`{block['deployed']['options']}`. The dual dV/dtheta against central differences of re-solved "
+                    f"values: max relative error {block['grad_theta_fd_max_rel_error']:.2g}.",
+                ],
+                [
+                    Table(["controller", *(f"seed {k}" for k in range(seeds)), "median"], rows),
+                    Table(["network", "validation mse_initial (median)", "mse_all_knots (median)"], validation),
+                    Table(["comparison", "metric", "median difference", "wins", "losses", "Wilcoxon p"], paired),
+                ],
+                [
+                    (
+                        str(figure.relative_to(out)),
+                        "Success over starts x robots per seed (dots) and median (bars); "
+                        "validation error over X0 x Theta",
+                    )
+                ],
+            )
+        )
+    machine_info = result.get("machine", {})
+    sections.append(Section("Machine", [f"`{json.dumps(machine_info)}`"]))
+    return write_report(out, "Robust control over robots (bench_param_adversary)", sections)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="a minutes-long check of the pipeline")
@@ -397,8 +481,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--closed-loop", action="store_true", help="also the closed-loop sampler over robots")
     parser.add_argument("--update", default=None, metavar="JSON", help="also merge the result into this file")
     parser.add_argument("--figure", default=None, metavar="PNG", help="write the figure of the first task here")
+    parser.add_argument(
+        "--report-from", default=None, metavar="JSON", help="only write the report of a stored result into --out"
+    )
     args = parser.parse_args(argv)
     out = Path(args.out or f"/tmp/seagul-bench-param-adversary{'-quick' if args.quick else ''}")
+    if args.report_from:
+        print(write_bench_report(json.loads(Path(args.report_from).read_text()), out))
+        return 0
     result: dict[str, Any] = {}
     t0 = time.perf_counter()
     for task in args.tasks.split(","):
@@ -417,6 +507,7 @@ def main(argv: list[str] | None = None) -> int:
         merged = json.loads(path.read_text()) if path.is_file() else {}
         merged.update(result)
         path.write_text(json.dumps(merged, indent=1) + "\n")
+    print(f"report: {write_bench_report(result, out)}", file=sys.stderr)
     print(json.dumps(result))
     return 0
 
