@@ -4,6 +4,7 @@ arrays, the Sobolev term in theta, and the uniform and adversarial samplers over
 from __future__ import annotations
 
 import dataclasses
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -327,3 +328,34 @@ def test_an_ensemble_over_robots_measures_its_spread_at_the_robots_it_is_given()
     by_hand = np.std([m.predict(x, tau, robots) for m in ens.members], axis=0)
     np.testing.assert_allclose(spread, by_hand, rtol=1e-10)
     assert not np.allclose(spread, ens.spread(x, tau, np.tile(TASK.theta, (4, 1))))
+
+
+def test_param_bench_report_renders_the_committed_result(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    """``bench_param_adversary --report-from``: the committed five-seed result as a report, one row per controller
+    with its per-seed rates and their median, and the closed-loop sampler's settings on the benchmark config."""
+    import importlib
+    import json
+
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.syspath_prepend(str(root))
+    bench = importlib.import_module("benchmarks.bench_param_adversary")
+    config = bench.ParamBenchConfig.for_task("acrobot", quick=False)
+    assert "closed-loop" not in config.methods()
+    config.closed_loop = True
+    settings = config.methods()["closed-loop"]
+    assert settings["cl_uniform_solves"] == config.budget // 3 and settings["value_cap"] == 50.0
+    stored = json.loads((root / "benchmarks" / "results" / "param_adversary.json").read_text())
+    assert (
+        bench.main(
+            ["--report-from", str(root / "benchmarks" / "results" / "param_adversary.json"), "--out", str(tmp_path)]
+        )
+        == 0
+    )
+    text = (tmp_path / "report.md").read_text()
+    block = stored["acrobot"]
+    rates = [r["success_rate"] for r in block["per_seed"]["closed-loop"]]
+    row = "| closed-loop sampler over robots, estimating MPC | " + " | ".join(f"{100 * r:.1f} %" for r in rates)
+    assert row + f" | {100 * sorted(rates)[len(rates) // 2]:.1f} % |" in text
+    assert f"| full-horizon MPC that knows the robot |{'  |' * block['seeds']} 100.0 % |" in text
+    assert (tmp_path / "acrobot" / "robust.png").stat().st_size > 10_000
+    assert "data:image/png;base64," in (tmp_path / "report.html").read_text()
