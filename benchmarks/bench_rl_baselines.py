@@ -11,9 +11,10 @@ that module) records its learning curve: success on the task's evaluation grid (
 evaluated as a user loads it (``SB3Policy``: model + observation statistics) on the grid and on the 100 held-out
 X0 starts every benchmark shares (seed 20211231). The zero-input policy on the same starts is the curves' floor.
 
-``--sweep`` first runs a small grid (learning rate x discount x network size, one seed, a fifth of the budget) per
-task and algorithm, keeps its table in ``sweep.json`` (committed as ``benchmarks/results/rl_sweep.json`` by the full
-run), and trains the seeds with each algorithm's best setting by final grid success (ties: mean return).
+``--sweep`` first runs a small grid (learning rate x discount x network size, one seed, a fifth of the budget or
+``--sweep-steps``) per task and algorithm, keeps its table in ``sweep.json`` (committed as
+``benchmarks/results/rl_sweep.json`` by the full run), and trains the seeds with each algorithm's best setting by
+final grid success (ties: mean return).
 
 Every run writes its directory before the next starts, so a re-run with the same ``--out`` skips what is done.
 Figures: ``rl_curves_<task>.png`` (median and 25-75 % band over seeds, success and return against steps).
@@ -114,13 +115,13 @@ def _jobs(workers: int, jobs: list[tuple[SB3Config, Path]], quick: bool = False)
     return list(Parallel(n_jobs=workers)(delayed(_run)(c, o, *sizes) for c, o in jobs))
 
 
-def sweep(task: str, algo: str, steps: int, out: Path, workers: int, quick: bool) -> dict[str, Any]:
-    """The sweep's table for one task and algorithm; returns it with the best setting."""
+def sweep(task: str, algo: str, budget: int, out: Path, workers: int, quick: bool) -> dict[str, Any]:
+    """The sweep's table for one task and algorithm (``budget`` environment steps per setting); returns it with the
+    best setting."""
     grid = SWEEP[algo]
     combos = [dict(zip(grid, values, strict=True)) for values in itertools.product(*grid.values())]
     if quick:
         combos = combos[:2]
-    budget = max(steps // 5, 1)
     jobs = []
     for k, combo in enumerate(combos):
         config = SB3Config(algo=algo, env_id=env_id_of(task), total_timesteps=budget, seed=100, eval_every=0, **combo)
@@ -191,7 +192,8 @@ def run_task(task: str, algos: list[str], args: argparse.Namespace, out: Path, s
         steps = args.steps.get((task, algo), steps_table[task][algo])
         best: dict[str, Any] = {}
         if args.sweep:
-            sweeps[algo] = sweep(task, algo, steps, out / task / algo / "sweep", args.workers, args.quick)
+            budget = args.sweep_steps.get((task, algo), max(steps // 5, 1))
+            sweeps[algo] = sweep(task, algo, budget, out / task / algo / "sweep", args.workers, args.quick)
             best = sweeps[algo]["best"]
         eval_every = max(steps // 20, 1)
         jobs = []
@@ -235,6 +237,10 @@ def run_task(task: str, algos: list[str], args: argparse.Namespace, out: Path, s
     figure = out / task / f"rl_curves_{task}.png"
     plot(task, per_algo, floor, figure)
     result["figure"] = str(figure)
+    if ship is not None:  # the full run's figure goes beside its JSON
+        shipped = ship.parent / figure.name
+        shutil.copy2(figure, shipped)
+        result["figure"] = str(shipped.relative_to(ROOT))
     return result
 
 
@@ -258,6 +264,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--workers", type=int, default=2, help="parallel training runs")
     parser.add_argument("--steps", type=_parse_steps, default={}, help="budgets, e.g. acrobot:SAC=100000")
     parser.add_argument("--sweep", action="store_true", help="run the hyperparameter sweep first")
+    parser.add_argument(
+        "--sweep-steps", type=_parse_steps, default={}, help="sweep budgets per setting (default a fifth of --steps)"
+    )
     parser.add_argument("--out", default=None, help="work directory (default /tmp/seagul-bench-rl[-quick])")
     parser.add_argument("--no-ship", action="store_true", help="do not copy the best models into the repository")
     args = parser.parse_args(argv)
