@@ -161,7 +161,7 @@ def plot(task: str, per_algo: dict[str, list[dict[str, Any]]], floor: dict[str, 
             ax.fill_between(steps[:n], *np.percentile(vals, [25, 75], axis=0), alpha=0.25)
     for ax, key, label in zip(axes, ("success_rate", "mean_return"), ("grid success", "mean return"), strict=True):
         ax.axhline(floor[key], color="k", ls=":", label="zero input")
-        ax.set_xlabel("environment steps (log: SAC budgets are ~25x smaller than PPO's)")
+        ax.set_xlabel("environment steps (log scale: SAC budgets are far smaller than PPO's)")
         ax.set_xscale("log")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
