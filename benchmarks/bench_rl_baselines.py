@@ -89,6 +89,7 @@ def _run(config: SB3Config, out: Path, n_grid: int = 0, n_heldout: int = 100) ->
         if stored.get("config") == json.loads(json.dumps(config.to_dict())):
             return stored
         # Another config's run (e.g. a different budget) in this directory: train this one afresh.
+        print(f"{out}: holds a run of another config; training this one in its place", file=sys.stderr)
         shutil.rmtree(out)
     from seagul_control.evaluation import SB3Policy, start_grid
     from seagul_learn.baselines import task_of_env

@@ -97,3 +97,32 @@ def test_zero_input_floor_and_heldout_starts():
     assert at_goal["success_rate"] == 1.0  # the upright equilibrium stays put without input
     away = episode_stats(task, ZeroPolicy(task.nu), starts)
     assert away["success_rate"] == 0.0 and away["mean_final_distance"] > 1.0
+
+
+def test_bench_reuses_a_stored_run_only_for_the_same_config(tmp_path, monkeypatch) -> None:
+    """``bench_rl_baselines._run``: a stored ``result.json`` is returned for its own config; for another config
+    (a different budget) the directory is trained afresh instead of being reused silently."""
+    import importlib
+    import json
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.syspath_prepend(str(root))
+    bench = importlib.import_module("benchmarks.bench_rl_baselines")
+    config = SB3Config(algo="SAC", total_timesteps=8000, seed=100, eval_every=0)
+    run = tmp_path / "combo0"
+    run.mkdir()
+    stored = {"config": json.loads(json.dumps(config.to_dict())), "marker": 1}
+    (run / "result.json").write_text(json.dumps(stored))
+    assert bench._run(config, run) == stored
+
+    class Retrained(Exception):
+        pass
+
+    def fake_train(cfg, out):
+        raise Retrained(cfg.total_timesteps)
+
+    monkeypatch.setattr(bench, "train_sb3", fake_train)
+    with pytest.raises(Retrained, match="16000"):
+        bench._run(SB3Config(algo="SAC", total_timesteps=16000, seed=100, eval_every=0), run)
+    assert not (run / "result.json").exists()
