@@ -444,6 +444,7 @@ class _MPCBase:
         """A transcription with the configured solver (or ``solver``), JIT-compiled when possible (falls back to
         interpreted)."""
         solver = self.solver if solver is None else solver
+        kwargs.setdefault("max_solve_time", self.max_solve_time)
         options = dict(self._solver_options) if solver == self.solver else self._options_for(solver)
         jit_options = self._jit_options if (self.jit and jit) else None
         if jit_options is not None and self._matrix_form():
@@ -501,8 +502,14 @@ class _MPCBase:
         max_iter: int,
         tol: float,
         solver_options: dict[str, Any] | None,
+        max_solve_time: float | None = None,
     ) -> None:
         solver = self.default_solver(free_time) if solver is None else solver
+        limit = max_solve_time
+        if limit is not None and not (isinstance(limit, (int, float, np.floating)) and 0 < limit < np.inf):
+            raise ValueError(f"{self.name}: max_solve_time must be a positive number of seconds or None, got {limit!r}")
+        self.max_solve_time = None if max_solve_time is None else float(max_solve_time)
+        """Wall-time limit of one solve (s); a solve that hits it fails and the step falls back (None: no limit)."""
         if solver not in ("fatrop", "ipopt"):
             raise ValueError(f"{self.name}: solver must be 'fatrop' or 'ipopt', got {solver!r}")
         if int(max_iter) < 0:
@@ -535,6 +542,10 @@ class LimitedLookaheadMPC(_MPCBase):
         jit_flags: compiler flags (default ``-O1`` for the scalar JIT, ``-O3`` for a matrix-form value function).
         max_iter: solver iteration limit per step.
         tol: solver tolerance.
+        max_solve_time: wall-time limit of one solve (s; None: none). A solve that hits it fails and the step falls
+            back like any failed solve (status ``"timeout: ..."``). IPOPT stops itself (``ipopt.max_wall_time``);
+            fatrop cannot (its regularisation loop is unbounded) and runs in a forked child that is killed
+            (:mod:`seagul_control._watchdog`, ~0.1 ms per step).
         solver_options: extra nlpsol options (e.g. ``{"fatrop.mu_init": 1e-2}``).
         substeps: RK4 substeps per step (default: the task's).
         trust_region: ``"lqr"`` (default), ``"box"`` or ``"none"`` (module docstring).
@@ -586,6 +597,7 @@ class LimitedLookaheadMPC(_MPCBase):
         jit_flags: tuple[str, ...] | None = None,
         max_iter: int = 50,
         tol: float = 1e-6,
+        max_solve_time: float | None = 5.0,
         solver_options: dict[str, Any] | None = None,
         substeps: int | None = None,
         trust_region: TrustRegion = "lqr",
@@ -645,7 +657,9 @@ class LimitedLookaheadMPC(_MPCBase):
             raise ValueError(f"{self.name}: goal_blend must be a finite number >= 0 (0 = off), got {goal_blend!r}")
         if self.goal_blend > 0 and not equilibrium:
             raise ValueError(f"{self.name}: goal_blend needs a goal that is a zero-cost equilibrium of the task")
-        self._configure_solver(solver, steps == "free", jit, jit_cache_dir, jit_flags, max_iter, tol, solver_options)
+        self._configure_solver(
+            solver, steps == "free", jit, jit_cache_dir, jit_flags, max_iter, tol, solver_options, max_solve_time
+        )
 
         self.free_time = steps == "free"
         self._vf_fn: ca.Function | None = None
@@ -990,6 +1004,7 @@ class FullHorizonMPC(_MPCBase):
         jit_flags: tuple[str, ...] | None = None,
         max_iter: int = 500,
         tol: float = 1e-6,
+        max_solve_time: float | None = 5.0,
         solver_options: dict[str, Any] | None = None,
         substeps: int | None = None,
         horizon: int | None = None,
@@ -999,7 +1014,7 @@ class FullHorizonMPC(_MPCBase):
     ) -> None:
         super().__init__(task, dt, warm_start, cold_guess)
         self._configure_solver(
-            solver, not task.fixed_step, jit, jit_cache_dir, jit_flags, max_iter, tol, solver_options
+            solver, not task.fixed_step, jit, jit_cache_dir, jit_flags, max_iter, tol, solver_options, max_solve_time
         )
         if model_params and task.parameters is None:
             raise ValueError(f"{self.name}: model_params=True needs a task that declares which parameters vary")

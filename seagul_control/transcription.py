@@ -27,6 +27,10 @@ interpreted solver with a warning. Measured gains are in docs/trajopt.md. This m
 CasADi code: the MPC's JIT options (:func:`jit_solver_options`) use the same cache directory
 (:func:`codegen_cache_dir`, i.e. :func:`seagul_control._io.cache_dir`) and compiler lookup.
 
+Wall time: ``max_solve_time`` bounds one solve. IPOPT stops itself (``ipopt.max_wall_time``); fatrop cannot (its
+inertia-correction loop is unbounded), so its solves then run in a killable forked child
+(:mod:`seagul_control._watchdog`) and an overrun returns a failed solution with status ``"timeout: ..."``.
+
 Stage access: after the build, bounds and the stored initial guess are read and written per stage in the style of
 acados' ``solver.set(stage, field, value)``: :meth:`Transcription.set`, :meth:`Transcription.get` and
 :meth:`Transcription.set_guess` (fields in :data:`STAGE_FIELDS`); the positions of each stage's variables and
@@ -53,6 +57,7 @@ import numpy as np
 
 from seagul_control import _io
 from seagul_control._io import atomic_write_text
+from seagul_control._watchdog import ForkedSolver, SolveTimeout
 from seagul_envs.tasks.base import Task
 
 TimeMode = Literal["equal", "at_most", "free"]
@@ -348,8 +353,11 @@ class Transcription:
         codegen: bool = False,
         codegen_dir: str | os.PathLike[str] | None = None,
         codegen_flags: tuple[str, ...] | None = None,
+        max_solve_time: float | None = None,
     ) -> None:
         n = task.num_steps if horizon is None else int(horizon)
+        if max_solve_time is not None and not (np.isfinite(max_solve_time) and max_solve_time > 0):
+            raise ValueError(f"max_solve_time must be a positive number of seconds or None, got {max_solve_time!r}")
         if n < 1:
             raise ValueError(f"horizon must be >= 1 interval, got {horizon}")
         if solver not in ("ipopt", "fatrop"):
@@ -526,6 +534,8 @@ class Transcription:
         nlp = {"x": self._w, "p": p, "f": objective, "g": ca.vertcat(*g)}
         if solver == "ipopt":
             options = {**default_ipopt_options(), "expand": True, **(solver_options or {})}
+            if max_solve_time is not None:  # IPOPT stops itself (the user's own limit, if any, wins)
+                options.setdefault("ipopt.max_wall_time", float(max_solve_time))
         else:
             options = {**default_fatrop_options(), "expand": True, "equality": equality, **(solver_options or {})}
         name = f"{task.name}_{solver}_n{n}" + ("_theta" if self.model_params else "")
@@ -543,6 +553,11 @@ class Transcription:
                 self.codegen_library = None
                 compiled = None
         self._solver: ca.Function = ca.nlpsol(name, solver, nlp, options) if compiled is None else compiled
+        self.max_solve_time = None if max_solve_time is None else float(max_solve_time)
+        # fatrop cannot stop itself inside one iteration (seagul_control._watchdog): it runs in a killable child.
+        self._call: Any = self._solver
+        if self.max_solve_time is not None and solver == "fatrop" and ForkedSolver.supported:
+            self._call = ForkedSolver(self._solver, self.max_solve_time)
         # Stage costs and elapsed time of a solution, for per-knot labels.
         self._stage_cost_fn = task.stage_cost.map(n)
 
@@ -753,9 +768,12 @@ class Transcription:
         if lam_x is not None:
             args["lam_x0"] = lam_x
         start = time.perf_counter()
-        out = self._solver(**args)
+        try:
+            out = self._call(**args)
+        except SolveTimeout as exc:
+            return self._failed(w0, f"timeout: {exc}", time.perf_counter() - start)
         elapsed = time.perf_counter() - start
-        stats = self._solver.stats()
+        stats = self._call.stats()
         w = np.asarray(out["x"]).ravel()
         lam_g_out = np.asarray(out["lam_g"]).ravel()
         states = np.stack([w[idx] for idx in self._x_idx])
@@ -772,7 +790,7 @@ class Transcription:
         return TranscriptionSolution(
             success=success and bool(np.all(np.isfinite(w))),
             status=status,
-            objective=float(out["f"]),
+            objective=float(np.asarray(out["f"]).ravel()[0]),
             states=states,
             controls=controls,
             steps=steps,
@@ -784,6 +802,25 @@ class Transcription:
             primal=w,
             lam_g=lam_g_out,
             lam_x=np.asarray(out["lam_x"]).ravel(),
+        )
+
+    def _failed(self, w0: np.ndarray, status: str, elapsed: float) -> TranscriptionSolution:
+        """A solve that produced nothing (e.g. stopped by ``max_solve_time``): NaN solution, the guess as primal."""
+        nan = np.full(self.horizon, np.nan)
+        return TranscriptionSolution(
+            success=False,
+            status=status,
+            objective=float("nan"),
+            states=np.full((self.horizon + 1, self.task.nx), np.nan),
+            controls=np.full((self.horizon, self.task.nu), np.nan),
+            steps=nan,
+            param_sensitivity=np.full(self._np, np.nan),
+            defect_multipliers=np.full((self.horizon, self.task.nx), np.nan),
+            iterations=-1,
+            solve_time=elapsed,
+            primal=np.asarray(w0, dtype=float).copy(),
+            lam_g=np.full(self._lbg.size, np.nan),
+            lam_x=np.full(self._lbw.size, np.nan),
         )
 
     def stage_costs(self, states: np.ndarray, controls: np.ndarray, steps: np.ndarray) -> np.ndarray:

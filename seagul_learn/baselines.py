@@ -28,7 +28,7 @@ import json
 import math
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import MISSING, asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
 
@@ -93,7 +93,10 @@ class SB3Config:
     n_envs: int = 0
     """Parallel envs (0 = the zoo entry's: PPO 4, SAC 1)."""
     normalize: bool = True
-    """Normalise observations (and, for PPO, rewards) with ``VecNormalize``; the statistics are saved."""
+    """Normalise observations with ``VecNormalize`` (rewards: ``normalize_reward``); the statistics are saved."""
+    normalize_reward: bool | None = None
+    """Also scale rewards by the running spread of the discounted return (``None``: PPO yes, SAC no, as in the
+    zoo). Acrobot costs span 1e-3 (balancing) to 1e5 (diverging) per step, which a critic's targets feel."""
     eval_every: int = 50_000
     """Environment steps between two points of the learning curve (0 = only at the end)."""
     eval_grid: int = 0
@@ -130,7 +133,31 @@ class SB3Config:
             "net_arch": list(self.net_arch or zoo["net_arch"]),
             "algo_kwargs": kwargs,
             "policy_kwargs": dict(zoo.get("policy_kwargs", {})),
+            "normalize_reward": self.reward_normalized(),
         }
+
+    def reward_normalized(self) -> bool:
+        """Whether rewards are normalised (``normalize_reward``, its ``None`` resolved per algorithm)."""
+        if not self.normalize:
+            return False
+        return self.algo == "PPO" if self.normalize_reward is None else bool(self.normalize_reward)
+
+    def describes(self, stored: dict[str, Any]) -> bool:
+        """Whether ``stored`` (a ``config.json``) is this config; fields it predates count at their defaults."""
+        defaults = {f.name: f.default for f in fields(self) if f.default is not MISSING}
+        filled = {k: v for k, v in json.loads(json.dumps(defaults)).items() if k not in stored} | stored
+        mine = json.loads(json.dumps(self.to_dict()))
+        try:  # normalize_reward compares by what it resolves to (None is the algorithm's default)
+            filled["normalize_reward"] = replace(
+                self,
+                normalize_reward=filled["normalize_reward"],
+                normalize=bool(filled["normalize"]),
+                algo=filled["algo"],
+            ).reward_normalized()
+        except (KeyError, ValueError, TypeError):
+            return False
+        mine["normalize_reward"] = self.reward_normalized()
+        return filled == mine
 
     def to_dict(self) -> dict[str, Any]:
         """JSON-ready dict (``config.json``)."""
@@ -229,7 +256,7 @@ def train_sb3(
     settings = config.resolved()
     venv: Any = make_vec_env(config.env_id, n_envs=settings["n_envs"], seed=config.seed, vec_env_cls=DummyVecEnv)
     if config.normalize:
-        venv = VecNormalize(venv, norm_obs=True, norm_reward=config.algo == "PPO", gamma=config.gamma)
+        venv = VecNormalize(venv, norm_obs=True, norm_reward=config.reward_normalized(), gamma=config.gamma)
     model = _make_model(config, venv)
     n_grid = config.eval_grid or task.profile.grid.points
     grid, _ = start_grid(task, n_grid)

@@ -30,6 +30,22 @@ def test_config_resolves_zoo_defaults_and_overrides():
     assert ZOO_DEFAULTS["SAC"]["algo_kwargs"]["tau"] == 0.02  # the table itself is untouched
 
 
+def test_reward_normalisation_resolves_per_algorithm_and_old_configs_still_match():
+    assert SB3Config(algo="PPO").reward_normalized() is True
+    assert SB3Config(algo="SAC").reward_normalized() is False  # the zoo's
+    assert SB3Config(algo="SAC", normalize_reward=True).reward_normalized() is True
+    assert SB3Config(algo="SAC", normalize_reward=True, normalize=False).reward_normalized() is False
+    assert SB3Config(algo="SAC", normalize_reward=True).resolved()["normalize_reward"] is True
+    sac = SB3Config(algo="SAC", total_timesteps=8000)
+    stored = sac.to_dict()
+    del stored["normalize_reward"]  # a config.json written before the field existed
+    assert SB3Config(algo="SAC", total_timesteps=8000, normalize_reward=False).describes(stored)
+    assert SB3Config(algo="SAC", total_timesteps=8000).describes(stored)
+    assert not SB3Config(algo="SAC", total_timesteps=8000, normalize_reward=True).describes(stored)
+    assert not SB3Config(algo="SAC", total_timesteps=9000).describes(stored)
+    assert not SB3Config(algo="PPO", total_timesteps=8000).describes(stored)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [

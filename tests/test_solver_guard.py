@@ -1,0 +1,133 @@
+"""The wall-time guard of solves (``max_solve_time``): fatrop runs in a killable child, IPOPT stops itself.
+
+fatrop's regularisation loop has no upper limit and once looped without end inside one MPC step
+(docs/closed_loop.md, "A solver hang found on the way"). A solve that never returns is stood in for by a solver
+that sleeps far longer than the limit: the guard must stop it within the limit, report it as a failed solve, and
+the next solve must work again (a fresh child).
+"""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+import pytest
+
+from seagul_control import _watchdog
+from seagul_control._watchdog import ForkedSolver, SolveTimeout
+from seagul_control.mpc import LimitedLookaheadMPC
+from seagul_control.transcription import Transcription
+from seagul_envs import make_task
+
+pytestmark = pytest.mark.skipif(not ForkedSolver.supported, reason="needs os.fork")
+
+X = np.array([0.3, -0.2, 0.0, 0.0])
+
+
+class _Hang:
+    """A solver that does not return for a minute (fatrop's unbounded loop, as seen from outside)."""
+
+    def __call__(self, **args):
+        time.sleep(60)
+
+    def stats(self):
+        return {}
+
+
+def _child_alive(pid: int | None) -> bool:
+    if pid is None:
+        return False
+    try:
+        done, _ = os.waitpid(pid, os.WNOHANG)
+    except ChildProcessError:
+        return False
+    return done == 0
+
+
+def test_guarded_fatrop_solve_equals_the_direct_one():
+    task = make_task("acrobot")
+    direct = Transcription(task, 5, step=0.1, solver="fatrop")
+    guarded = Transcription(task, 5, step=0.1, solver="fatrop", max_solve_time=5.0)
+    a, b = direct.solve(X, 5.0), guarded.solve(X, 5.0)
+    assert a.success and b.success
+    assert b.status == a.status and b.iterations == a.iterations
+    np.testing.assert_allclose(b.primal, a.primal, rtol=0, atol=1e-12)
+    np.testing.assert_allclose(b.lam_g, a.lam_g, rtol=0, atol=1e-12)
+    assert b.objective == pytest.approx(a.objective, abs=1e-12)
+    # warm-started from the solution: the same again
+    c, d = direct.solve(X + 0.01, 4.9, guess=a.primal), guarded.solve(X + 0.01, 4.9, guess=a.primal)
+    np.testing.assert_allclose(d.primal, c.primal, rtol=0, atol=1e-12)
+
+
+def test_a_solve_that_never_returns_is_stopped_within_the_limit_and_the_next_one_works():
+    task = make_task("acrobot")
+    trans = Transcription(task, 5, step=0.1, solver="fatrop", max_solve_time=1.0)
+    reference = trans.solve(X, 5.0)
+    server = _watchdog._server()
+    key = trans._call._key
+    server.solvers[key] = _Hang()
+    server.stop()  # the next call forks a child holding the hanging solver
+    start = time.perf_counter()
+    hung = trans.solve(X, 5.0)
+    elapsed = time.perf_counter() - start
+    assert not hung.success and hung.status.startswith("timeout")
+    assert np.all(np.isnan(hung.controls))
+    assert 1.0 <= elapsed < 3.0
+    assert trans._call.timeouts == 1
+    assert server.pid is None  # the hanging child was killed and reaped
+    server.solvers[key] = trans._solver
+    again = trans.solve(X, 5.0)
+    assert again.success
+    np.testing.assert_allclose(again.primal, reference.primal, rtol=0, atol=1e-12)
+    assert _child_alive(server.pid)
+
+
+def test_forked_solver_raises_timeout_and_reports_solver_errors():
+    slow = ForkedSolver(_Hang(), 0.3)
+    with pytest.raises(SolveTimeout, match=r"max_solve_time=0\.3"):
+        slow()
+
+    class Broken:
+        def __call__(self, **args):
+            raise ValueError("bad input to the solver")
+
+        def stats(self):
+            return {}
+
+    with pytest.raises(RuntimeError, match="bad input to the solver"):
+        ForkedSolver(Broken(), 1.0)(x0=np.zeros(2))
+
+
+def test_the_mpc_falls_back_when_a_step_hits_the_limit():
+    task = make_task("acrobot")
+    mpc = LimitedLookaheadMPC(task, None, horizon=5, jit=False, max_solve_time=0.5)
+    _, info0 = mpc.act(X, 5.0)
+    assert info0.source == "solver"
+    problem, _ = mpc._select(4.9)
+    server = _watchdog._server()
+    key = problem.trans._call._key
+    server.solvers[key] = _Hang()
+    server.stop()
+    start = time.perf_counter()
+    u1, info1 = mpc.act(X, 4.9)
+    assert time.perf_counter() - start < 2.5
+    assert not info1.success and info1.status.startswith("timeout")
+    assert info1.source == "shifted"  # the previous plan's next input, as for any failed solve
+    assert np.all(np.isfinite(u1))
+    server.solvers[key] = problem.trans._solver
+    _, info2 = mpc.act(X, 4.8)
+    assert info2.success
+
+
+def test_ipopt_gets_its_own_wall_time_limit_and_bad_limits_are_named():
+    task = make_task("acrobot")
+    trans = Transcription(task, 5, step=0.1, solver="ipopt", max_solve_time=1e-6)
+    assert trans._call is trans._solver  # IPOPT stops itself (ipopt.max_wall_time): no child
+    out = trans.solve(X, 5.0)
+    assert not out.success and out.status == "Maximum_WallTime_Exceeded"
+    for bad in (0.0, -1.0, float("nan"), float("inf")):
+        with pytest.raises(ValueError, match="max_solve_time"):
+            Transcription(task, 5, step=0.1, solver="fatrop", max_solve_time=bad)
+        with pytest.raises(ValueError, match="max_solve_time"):
+            LimitedLookaheadMPC(task, None, horizon=5, jit=False, max_solve_time=bad)
