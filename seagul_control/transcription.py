@@ -555,9 +555,9 @@ class Transcription:
         self._solver: ca.Function = ca.nlpsol(name, solver, nlp, options) if compiled is None else compiled
         self.max_solve_time = None if max_solve_time is None else float(max_solve_time)
         # fatrop cannot stop itself inside one iteration (seagul_control._watchdog): it runs in a killable child.
-        self._call: Any = self._solver
+        self._guard: ForkedSolver | None = None
         if self.max_solve_time is not None and solver == "fatrop" and ForkedSolver.supported:
-            self._call = ForkedSolver(self._solver, self.max_solve_time)
+            self._guard = ForkedSolver(self._solver, self.max_solve_time)
         # Stage costs and elapsed time of a solution, for per-knot labels.
         self._stage_cost_fn = task.stage_cost.map(n)
 
@@ -767,13 +767,14 @@ class Transcription:
             args["lam_g0"] = lam_g
         if lam_x is not None:
             args["lam_x0"] = lam_x
+        call: Any = self._solver if self._guard is None else self._guard
         start = time.perf_counter()
         try:
-            out = self._call(**args)
+            out = call(**args)
         except SolveTimeout as exc:
             return self._failed(w0, f"timeout: {exc}", time.perf_counter() - start)
         elapsed = time.perf_counter() - start
-        stats = self._call.stats()
+        stats = call.stats()
         w = np.asarray(out["x"]).ravel()
         lam_g_out = np.asarray(out["lam_g"]).ravel()
         states = np.stack([w[idx] for idx in self._x_idx])

@@ -65,7 +65,7 @@ def test_a_solve_that_never_returns_is_stopped_within_the_limit_and_the_next_one
     trans = Transcription(task, 5, step=0.1, solver="fatrop", max_solve_time=1.0)
     reference = trans.solve(X, 5.0)
     server = _watchdog._server()
-    key = trans._call._key
+    key = trans._guard._key
     server.solvers[key] = _Hang()
     server.stop()  # the next call forks a child holding the hanging solver
     start = time.perf_counter()
@@ -74,7 +74,7 @@ def test_a_solve_that_never_returns_is_stopped_within_the_limit_and_the_next_one
     assert not hung.success and hung.status.startswith("timeout")
     assert np.all(np.isnan(hung.controls))
     assert 1.0 <= elapsed < 3.0
-    assert trans._call.timeouts == 1
+    assert trans._guard.timeouts == 1
     assert server.pid is None  # the hanging child was killed and reaped
     server.solvers[key] = trans._solver
     again = trans.solve(X, 5.0)
@@ -106,7 +106,7 @@ def test_the_mpc_falls_back_when_a_step_hits_the_limit():
     assert info0.source == "solver"
     problem, _ = mpc._select(4.9)
     server = _watchdog._server()
-    key = problem.trans._call._key
+    key = problem.trans._guard._key
     server.solvers[key] = _Hang()
     server.stop()
     start = time.perf_counter()
@@ -123,7 +123,7 @@ def test_the_mpc_falls_back_when_a_step_hits_the_limit():
 def test_ipopt_gets_its_own_wall_time_limit_and_bad_limits_are_named():
     task = make_task("acrobot")
     trans = Transcription(task, 5, step=0.1, solver="ipopt", max_solve_time=1e-6)
-    assert trans._call is trans._solver  # IPOPT stops itself (ipopt.max_wall_time): no child
+    assert trans._guard is None  # IPOPT stops itself (ipopt.max_wall_time): no child
     out = trans.solve(X, 5.0)
     assert not out.success and out.status == "Maximum_WallTime_Exceeded"
     for bad in (0.0, -1.0, float("nan"), float("inf")):
