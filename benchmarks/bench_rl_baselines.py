@@ -4,6 +4,7 @@ Usage::
 
     .venv/bin/python benchmarks/bench_rl_baselines.py [--quick] [--tasks acrobot,glider] [--algos PPO,SAC]
         [--seeds 3] [--workers 2] [--out DIR] [--steps acrobot:PPO=2000000,...] [--sweep] [--no-ship]
+        [--update benchmarks/results/rl_baselines.json]
 
 For every task, algorithm and seed one run of :func:`seagul_learn.baselines.train_sb3` (zoo-derived settings, see
 that module) records its learning curve: success on the task's evaluation grid (acrobot 20 x 20 over
@@ -277,6 +278,11 @@ def main(argv: list[str] | None = None) -> int:
     )
     parser.add_argument("--out", default=None, help="work directory (default /tmp/seagul-bench-rl[-quick])")
     parser.add_argument("--no-ship", action="store_true", help="do not copy the best models into the repository")
+    parser.add_argument(
+        "--update",
+        default=None,
+        help="merge this run's tasks into this result JSON (its other tasks kept) and print the merged object",
+    )
     args = parser.parse_args(argv)
     if args.seeds is None:
         args.seeds = 2 if args.quick else 3
@@ -292,6 +298,21 @@ def main(argv: list[str] | None = None) -> int:
         result[task] = run_task(task, algos, args, out, ship)
         print(f"{task}: " + ", ".join(f"{a}: {result[task][a.lower()]['success_rate']:.1%}" for a in algos), flush=True)
     result["machine"] = {**machine(), "wall_s": round(time.perf_counter() - t0, 1)}
+    if args.update:
+        path = Path(args.update)
+        merged = json.loads(path.read_text()) if path.is_file() else {}
+        kept = [t for t in merged if t in TASKS and t not in tasks]
+        # Each task keeps the machine record of the run that made it.
+        for t in kept:
+            merged[t].setdefault("machine", merged.get("machine", {}))
+        for t in tasks:
+            merged[t] = {**result[t], "machine": result["machine"]}
+        merged["machine"] = result["machine"]
+        merged["updated_tasks"] = tasks
+        tmp = path.with_suffix(".tmp")
+        tmp.write_text(json.dumps(merged, indent=1) + "\n")
+        tmp.replace(path)
+        result = merged
     print(json.dumps(result))
     return 0
 
