@@ -200,7 +200,9 @@ def run_task(task: str, algos: list[str], args: argparse.Namespace, out: Path, s
     for algo in algos:
         steps = args.steps.get((task, algo), steps_table[task][algo])
         best: dict[str, Any] = {}
-        if args.sweep:
+        if args.settings_from:
+            best = _stored_best(Path(args.settings_from), task, algo)
+        elif args.sweep:
             budget = args.sweep_steps.get((task, algo), max(steps // 5, 1))
             sweeps[algo] = sweep(task, algo, budget, out / task / algo / "sweep", args.workers, args.quick)
             best = sweeps[algo]["best"]
@@ -239,18 +241,54 @@ def run_task(task: str, algos: list[str], args: argparse.Namespace, out: Path, s
             "per_seed_heldout": held_rates,
             "mean_final_distance": float(np.median([r["grid"]["mean_final_distance"] for r in runs])),
             "settings": runs[0]["resolved"] | {"gamma": runs[0]["config"]["gamma"]},
+            # Per seed, so that a later --update of another algorithm can redraw this one's curve.
+            "curves": [
+                [{k: p[k] for k in ("env_steps", "wall_s", "success_rate", "mean_return")} for p in r["curve"]]
+                for r in runs
+            ],
         }
+        if args.settings_from:
+            result[algo.lower()]["settings_from"] = str(args.settings_from)
     if sweeps:
         (out / task / "sweep.json").write_text(json.dumps(sweeps, indent=1))
         result["sweep"] = sweeps
-    figure = out / task / f"rl_curves_{task}.png"
-    plot(task, per_algo, floor, figure)
+    stored = _stored_curves(args.update, task, algos)
+    update = Path(args.update) if args.update else None
+    kept = json.loads(update.read_text()).get(task, {}) if update is not None and update.is_file() else {}
+    # An update that keeps an algorithm whose curves were not stored draws this run's alone, under its own name.
+    uncurved = [a for a in ALGOS if a not in algos and a not in stored and a.lower() in kept]
+    suffix = "_" + "_".join(a.lower() for a in algos) if uncurved else ""
+    figure = out / task / f"rl_curves_{task}{suffix}.png"
+    figure.parent.mkdir(parents=True, exist_ok=True)
+    plot(task, {**stored, **per_algo}, floor, figure)
     result["figure"] = str(figure)
     if ship is not None:  # the full run's figure goes beside its JSON
         shipped = ship.parent / figure.name
         shutil.copy2(figure, shipped)
         result["figure"] = str(shipped.relative_to(ROOT))
     return result
+
+
+def _stored_curves(update: str | None, task: str, algos: list[str]) -> dict[str, list[dict[str, Any]]]:
+    """The curves of the algorithms an ``--update`` keeps (those of ``task`` in the file that this run does not
+    train), in ``plot``'s form; an algorithm stored without curves (before they were kept) is left out."""
+    if not update or not Path(update).is_file():
+        return {}
+    stored = json.loads(Path(update).read_text()).get(task, {})
+    return {
+        a: [{"curve": c} for c in stored[a.lower()]["curves"]]
+        for a in ALGOS
+        if a not in algos and stored.get(a.lower(), {}).get("curves")
+    }
+
+
+def _stored_best(path: Path, task: str, algo: str) -> dict[str, Any]:
+    """The best setting of a committed sweep (``rl_sweep.json``: ``{task: {algo: {"best": {...}}}}``)."""
+    try:
+        best = dict(json.loads(path.read_text())[task][algo]["best"])
+    except (OSError, KeyError, TypeError, json.JSONDecodeError) as exc:
+        raise SystemExit(f"--settings-from {path}: no sweep result for {task} {algo} ({exc!r})") from exc
+    return {k: tuple(v) if isinstance(v, list) else v for k, v in best.items()}
 
 
 def _parse_steps(text: str) -> dict[tuple[str, str], int]:
@@ -275,6 +313,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sweep", action="store_true", help="run the hyperparameter sweep first")
     parser.add_argument(
         "--sweep-steps", type=_parse_steps, default={}, help="sweep budgets per setting (default a fifth of --steps)"
+    )
+    parser.add_argument(
+        "--settings-from",
+        default=None,
+        help="train with the best settings of a stored sweep (e.g. benchmarks/results/rl_sweep.json), no sweep",
     )
     parser.add_argument("--out", default=None, help="work directory (default /tmp/seagul-bench-rl[-quick])")
     parser.add_argument("--no-ship", action="store_true", help="do not copy the best models into the repository")
@@ -306,7 +349,18 @@ def main(argv: list[str] | None = None) -> int:
         for t in kept:
             merged[t].setdefault("machine", merged.get("machine", {}))
         for t in tasks:
-            merged[t] = {**result[t], "machine": result["machine"]}
+            # The algorithms this run trained replace theirs; the task's others (and their sweep rows) are kept,
+            # each with the machine record of the run that made it.
+            old = merged.get(t, {})
+            for a in ALGOS:
+                if a not in algos and a.lower() in old:
+                    old[a.lower()].setdefault("machine", old.get("machine", merged.get("machine", {})))
+            sweeps = {**old.get("sweep", {}), **result[t].get("sweep", {})}
+            merged[t] = {**old, **result[t], "machine": result["machine"]}
+            for a in algos:
+                merged[t][a.lower()]["machine"] = result["machine"]
+            if sweeps:
+                merged[t]["sweep"] = sweeps
         merged["machine"] = result["machine"]
         merged["updated_tasks"] = tasks
         tmp = path.with_suffix(".tmp")

@@ -20,6 +20,10 @@ costs up to 1e5 per step while balancing costs ~1e-3. SAC's ``learning_starts`` 
 budgets here are 20-40 k steps (each step is a gradient update, ~10-20 ms on one core), and 10 k random steps would
 be a third to half of them; 1,000 steps are still 20-30 random episodes. The sweep in
 ``benchmarks/bench_rl_baselines.py`` varies the settings that matter (learning rate, discount, network size).
+
+What the learner sees (``training_env``): the horizon's end is a termination (``terminal_at_horizon``; the envs
+report it as ``truncated``, which makes SB3 bootstrap past a finite horizon), and rewards can carry a fixed scale
+(``reward_scale``). Logged returns and all evaluations are in the task's units.
 """
 
 from __future__ import annotations
@@ -29,6 +33,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import MISSING, asdict, dataclass, field, fields, replace
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -72,6 +77,10 @@ ZOO_DEFAULTS: dict[str, dict[str, Any]] = {
 }
 
 
+#: What a ``config.json`` written before a field existed meant by it, where that is not the field's default.
+_PREDATED: dict[str, Any] = {"terminal_at_horizon": False}
+
+
 @dataclass
 class SB3Config:
     """Everything that defines an RL baseline run (one place; the example's command line is derived from it)."""
@@ -97,6 +106,17 @@ class SB3Config:
     normalize_reward: bool | None = None
     """Also scale rewards by the running spread of the discounted return (``None``: PPO yes, SAC no, as in the
     zoo). Acrobot costs span 1e-3 (balancing) to 1e5 (diverging) per step, which a critic's targets feel."""
+    reward_scale: float = 1.0
+    """A fixed factor on the training reward (SAC's reward scale, Haarnoja et al. 2018, sec. 5.2): the optimal
+    policy is unchanged, the critic's targets shrink (the acrobot's zero-torque return is -2.2e4). Applied inside
+    each env after its ``Monitor``, so logged episode returns and every evaluation stay in the task's units."""
+    terminal_at_horizon: bool = True
+    """The end of the task's horizon is a termination for the learner, not a time-limit truncation. The seagul envs
+    are finite-horizon problems with the time to go in the observation and the terminal cost in the last reward, so
+    nothing follows the last step (Pardo et al. 2018, "Time Limits in Reinforcement Learning"). Gymnasium's
+    ``truncated`` makes SB3 bootstrap ``gamma * Q(x_N)`` at an observation (time to go 0) that no transition ever
+    starts from: with ``gamma = 0.995`` that extrapolation can stand for up to ``1 / (1 - gamma) = 200`` more steps.
+    ``False`` is what runs before the thirteenth session did."""
     eval_every: int = 50_000
     """Environment steps between two points of the learning curve (0 = only at the end)."""
     eval_grid: int = 0
@@ -121,6 +141,8 @@ class SB3Config:
                 raise ValueError(f"{name} must be >= 0, got {getattr(self, name)}")
         if any(w < 1 for w in self.net_arch):
             raise ValueError(f"net_arch widths must be >= 1, got {self.net_arch}")
+        if not (self.reward_scale > 0 and math.isfinite(self.reward_scale)):
+            raise ValueError(f"reward_scale must be a finite number > 0, got {self.reward_scale}")
 
     # ------------------------------------------------------------------------------------ resolved settings
     def resolved(self) -> dict[str, Any]:
@@ -134,6 +156,7 @@ class SB3Config:
             "algo_kwargs": kwargs,
             "policy_kwargs": dict(zoo.get("policy_kwargs", {})),
             "normalize_reward": self.reward_normalized(),
+            "reward_scale": float(self.reward_scale),
         }
 
     def reward_normalized(self) -> bool:
@@ -143,8 +166,9 @@ class SB3Config:
         return self.algo == "PPO" if self.normalize_reward is None else bool(self.normalize_reward)
 
     def describes(self, stored: dict[str, Any]) -> bool:
-        """Whether ``stored`` (a ``config.json``) is this config; fields it predates count at their defaults."""
-        defaults = {f.name: f.default for f in fields(self) if f.default is not MISSING}
+        """Whether ``stored`` (a ``config.json``) is this config; fields it predates count at their defaults, or
+        at what runs did before the field existed where that differs (``terminal_at_horizon``: ``False``)."""
+        defaults = {f.name: f.default for f in fields(self) if f.default is not MISSING} | _PREDATED
         filled = {k: v for k, v in json.loads(json.dumps(defaults)).items() if k not in stored} | stored
         mine = json.loads(json.dumps(self.to_dict()))
         try:  # normalize_reward compares by what it resolves to (None is the algorithm's default)
@@ -177,6 +201,23 @@ def task_of_env(env_id: str) -> Any:
         return env.unwrapped.task  # type: ignore[attr-defined]
     finally:
         env.close()
+
+
+def _learner_view(env: Any, scale: float, terminal_at_horizon: bool) -> Any:
+    """``env`` as the learner sees it: reward times ``scale``, and (``terminal_at_horizon``) the horizon's end a
+    termination (``SB3Config.reward_scale``, ``SB3Config.terminal_at_horizon``)."""
+    import gymnasium as gym
+
+    class HorizonEndTerminates(gym.Wrapper):
+        """``terminated = terminated or truncated``, ``truncated = False``: the finite horizon's end is terminal."""
+
+        def step(self, action: Any) -> Any:
+            obs, reward, terminated, truncated, info = self.env.step(action)
+            return obs, reward, bool(terminated or truncated), False, info
+
+    if scale != 1.0:
+        env = gym.wrappers.TransformReward(env, lambda r: float(r) * scale)
+    return HorizonEndTerminates(env) if terminal_at_horizon else env
 
 
 class _NormalizedPolicy:
@@ -233,6 +274,27 @@ def _make_model(config: SB3Config, venv: Any) -> Any:
     )
 
 
+def training_env(config: SB3Config) -> Any:
+    """The vectorised env ``config`` trains in: ``n_envs`` seeded copies of ``env_id``, each ``Monitor``-ed (episode
+    returns in the task's units), then seen through ``reward_scale`` and ``terminal_at_horizon``, then
+    ``VecNormalize`` if asked."""
+    from stable_baselines3.common.env_util import make_vec_env
+    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
+
+    venv: Any = make_vec_env(
+        config.env_id,
+        n_envs=config.resolved()["n_envs"],
+        seed=config.seed,
+        vec_env_cls=DummyVecEnv,
+        wrapper_class=partial(
+            _learner_view, scale=float(config.reward_scale), terminal_at_horizon=bool(config.terminal_at_horizon)
+        ),
+    )
+    if config.normalize:
+        venv = VecNormalize(venv, norm_obs=True, norm_reward=config.reward_normalized(), gamma=config.gamma)
+    return venv
+
+
 def train_sb3(
     config: SB3Config, out: str | Path, on_point: Callable[[dict[str, Any]], None] | None = None
 ) -> dict[str, Any]:
@@ -244,8 +306,6 @@ def train_sb3(
     """
     import torch
     from stable_baselines3.common.callbacks import BaseCallback
-    from stable_baselines3.common.env_util import make_vec_env
-    from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     from seagul_control.evaluation import start_grid
 
@@ -254,9 +314,7 @@ def train_sb3(
     torch.set_num_threads(1)  # small networks: one thread is fastest and keeps runs machine-independent
     task = task_of_env(config.env_id)
     settings = config.resolved()
-    venv: Any = make_vec_env(config.env_id, n_envs=settings["n_envs"], seed=config.seed, vec_env_cls=DummyVecEnv)
-    if config.normalize:
-        venv = VecNormalize(venv, norm_obs=True, norm_reward=config.reward_normalized(), gamma=config.gamma)
+    venv = training_env(config)
     model = _make_model(config, venv)
     n_grid = config.eval_grid or task.profile.grid.points
     grid, _ = start_grid(task, n_grid)

@@ -17,6 +17,7 @@ from seagul_learn.baselines import (
     smoke_config,
     task_of_env,
     train_sb3,
+    training_env,
 )
 
 
@@ -46,6 +47,48 @@ def test_reward_normalisation_resolves_per_algorithm_and_old_configs_still_match
     assert not SB3Config(algo="PPO", total_timesteps=8000).describes(stored)
 
 
+def _fixed_torque_episode(config: SB3Config) -> tuple[list[float], float, bool]:
+    """One training-env episode at a fixed torque: the learner's rewards, Monitor's return, SB3's timeout flag."""
+    venv = training_env(config)
+    venv.reset()
+    action = np.full((1, 1), 7.0, dtype=np.float32)  # the same episode for every config
+    rewards = []
+    while True:
+        _, reward, done, info = venv.step(action)
+        rewards.append(float(reward[0]))
+        if done[0]:
+            return rewards, float(info[0]["episode"]["r"]), bool(info[0]["TimeLimit.truncated"])
+
+
+def test_reward_scale_scales_what_the_learner_sees_not_the_logged_return():
+    plain, plain_return, _ = _fixed_torque_episode(SB3Config(algo="SAC", seed=3, normalize=False))
+    scaled, scaled_return, _ = _fixed_torque_episode(SB3Config(algo="SAC", seed=3, reward_scale=0.01, normalize=False))
+    assert len(plain) == len(scaled) == 50 and min(plain) < -1.0
+    np.testing.assert_allclose(scaled, 0.01 * np.array(plain), rtol=1e-6)  # the VecEnv keeps float32
+    assert scaled_return == pytest.approx(plain_return, rel=1e-5)  # Monitor: the task's units
+    assert plain_return == pytest.approx(sum(plain), rel=1e-5)
+    assert SB3Config(algo="SAC", reward_scale=0.01).resolved()["reward_scale"] == 0.01
+    stored = SB3Config(algo="SAC").to_dict()
+    del stored["reward_scale"]  # a config.json written before the field existed
+    assert SB3Config(algo="SAC").describes(stored)
+    assert not SB3Config(algo="SAC", reward_scale=0.01).describes(stored)
+
+
+def test_the_horizon_end_is_a_termination_for_the_learner():
+    # SB3 bootstraps gamma * Q(next obs) past a truncation (info["TimeLimit.truncated"]); a finite-horizon task's
+    # last step has nothing after it, so by default the learner sees a termination there.
+    rewards, _, timeout = _fixed_torque_episode(SB3Config(algo="SAC", seed=3, normalize=False))
+    assert len(rewards) == 50 and timeout is False
+    old_rewards, _, old_timeout = _fixed_torque_episode(
+        SB3Config(algo="SAC", seed=3, normalize=False, terminal_at_horizon=False)
+    )
+    assert old_timeout is True and old_rewards == rewards
+    stored = SB3Config(algo="PPO").to_dict()
+    del stored["terminal_at_horizon"]  # a run from before the field: it bootstrapped past the end
+    assert SB3Config(algo="PPO", terminal_at_horizon=False).describes(stored)
+    assert not SB3Config(algo="PPO").describes(stored)
+
+
 @pytest.mark.parametrize(
     ("kwargs", "match"),
     [
@@ -55,6 +98,8 @@ def test_reward_normalisation_resolves_per_algorithm_and_old_configs_still_match
         ({"learning_rate": -1.0}, "learning_rate"),
         ({"net_arch": (0,)}, "net_arch"),
         ({"eval_every": -1}, "eval_every"),
+        ({"reward_scale": 0.0}, "reward_scale"),
+        ({"reward_scale": float("inf")}, "reward_scale"),
     ],
 )
 def test_config_rejects_bad_values(kwargs, match):
@@ -142,3 +187,61 @@ def test_bench_reuses_a_stored_run_only_for_the_same_config(tmp_path, monkeypatc
     with pytest.raises(Retrained, match="16000"):
         bench._run(SB3Config(algo="SAC", total_timesteps=16000, seed=100, eval_every=0), run)
     assert not (run / "result.json").exists()
+
+
+def test_bench_update_of_one_algorithm_keeps_the_others_and_takes_settings_from_a_stored_sweep(
+    tmp_path, monkeypatch
+) -> None:
+    """``bench_rl_baselines --algos SAC --settings-from SWEEP --update FILE``: SAC trains with the sweep's best
+    setting and replaces its entry; the task's PPO entry, its sweep rows and the other task stay as they were."""
+    import importlib
+    import json
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.syspath_prepend(str(root))
+    bench = importlib.import_module("benchmarks.bench_rl_baselines")
+    seen = []
+
+    def fake_run(config, out, n_grid=0, n_heldout=100):
+        seen.append(config)
+        curve = [{"env_steps": s, "wall_s": 1.0, "success_rate": 0.0, "mean_return": -5.0 * s} for s in (10, 20)]
+        return {
+            "config": config.to_dict(),
+            "resolved": config.resolved(),
+            "env_steps": 20,
+            "train_wall_s": 2.0,
+            "curve": curve,
+            "model": str(out / "model.zip"),
+            "grid": {"success_rate": 0.25, "mean_return": -1.0, "mean_final_distance": 3.0},
+            "heldout": {"success_rate": 0.5, "mean_return": -1.0, "mean_final_distance": 3.0},
+        }
+
+    monkeypatch.setattr(bench, "_run", fake_run)
+    sweep = tmp_path / "sweep.json"
+    sweep.write_text(json.dumps({"acrobot": {"SAC": {"best": {"learning_rate": 3e-4, "net_arch": [32, 32]}}}}))
+    result = tmp_path / "rl.json"
+    old_ppo = {"algo": "PPO", "success_rate": 0.0, "env_steps": 1000}
+    result.write_text(
+        json.dumps(
+            {
+                "acrobot": {"ppo": old_ppo, "sweep": {"PPO": {"rows": [1]}}, "machine": {"wall_s": 7}},
+                "glider": {"ppo": {"algo": "PPO"}},
+                "machine": {"wall_s": 7},
+            }
+        )
+    )
+    args = ["--quick", "--tasks", "acrobot", "--algos", "SAC", "--seeds", "2", "--workers", "1"]
+    args += ["--settings-from", str(sweep), "--out", str(tmp_path / "w"), "--update", str(result)]
+    assert bench.main(args) == 0
+    assert [(c.learning_rate, c.net_arch, c.seed) for c in seen] == [(3e-4, (32, 32), 0), (3e-4, (32, 32), 1)]
+    merged = json.loads(result.read_text())
+    assert merged["glider"]["ppo"] == {"algo": "PPO"}
+    acro = merged["acrobot"]
+    assert {k: v for k, v in acro["ppo"].items() if k != "machine"} == old_ppo
+    assert acro["ppo"]["machine"] == {"wall_s": 7}  # the run that made it
+    assert acro["sweep"] == {"PPO": {"rows": [1]}}
+    assert acro["sac"]["success_rate"] == 0.25 and acro["sac"]["settings_from"] == str(sweep)
+    assert len(acro["sac"]["curves"]) == 2 and acro["sac"]["curves"][0][1]["env_steps"] == 20
+    # PPO's curves were not stored, so this run's figure is SAC's alone, under its own name.
+    assert Path(acro["figure"]).name == "rl_curves_acrobot_sac.png" and Path(acro["figure"]).is_file()
