@@ -8,6 +8,11 @@ run's config with ``TrainConfig.refit_steps`` etc. overridden, fitted by :func:`
 
     python scripts/refit_value.py RUN --cap 50 --grad-max 10 --hidden 64,64 --steps 20000 --out refit.pt
 
+With ``--candidates N --ensemble K`` it fits ``N`` members and keeps the ``K`` whose MPC flies best on training starts
+(``TrainConfig.refit_candidates``, :func:`seagul_learn.training.refit_and_select`): ``network_candidates.pt`` and
+``network_selection.json`` are written beside ``--out``. Batch size and seed default to the run's own, so the
+result is what the run would have deployed with ``refit_candidates``.
+
 Prints the number of knots; the last line is a JSON object with the output path, the counts (knots, gradient labels
 used) and the wall time.
 """
@@ -23,7 +28,7 @@ from pathlib import Path
 import torch
 
 from seagul_learn.dataset import Dataset, training_arrays
-from seagul_learn.training import TrainConfig, _as_tensors, _Trainer, make_network, refit
+from seagul_learn.training import TrainConfig, _as_tensors, _Trainer, make_network, refit, refit_and_select
 
 
 def main() -> None:
@@ -34,14 +39,16 @@ def main() -> None:
     parser.add_argument("--grad-max", type=float, default=10.0, help="drop gradient labels above this std. norm")
     parser.add_argument("--hidden", default="64,64", help="hidden widths, comma-separated")
     parser.add_argument("--steps", type=int, default=20000, help="Adam steps (cosine learning-rate decay)")
-    parser.add_argument("--batch-size", type=int, default=256)
+    parser.add_argument("--batch-size", type=int, default=None, help="default: the run's")
     parser.add_argument("--lr", type=float, default=1e-3)
     parser.add_argument("--sobolev", type=float, default=1.0, help="weight of the gradient term")
     parser.add_argument("--max-solves", type=int, default=0, help="use only records with index below this (0: all)")
-    parser.add_argument("--seed", type=int, default=0)
+    parser.add_argument("--seed", type=int, default=None, help="default: the run's")
     parser.add_argument("--ensemble", type=int, default=1, help="members (>= 2: a ValueEnsemble, one fit each)")
     parser.add_argument("--pessimism", type=float, default=1.0, help="the ensemble's spread weight in the MPC")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1: a small network is fastest so)")
+    parser.add_argument("--candidates", type=int, default=0, help="fit this many members, keep the --ensemble best")
+    parser.add_argument("--select-episodes", type=int, default=100, help="closed-loop episodes per candidate subset")
     args = parser.parse_args()
     if args.cap <= 0 or args.grad_max <= 0 or args.steps < 1:
         parser.error("--cap and --grad-max must be > 0 and --steps >= 1")
@@ -53,13 +60,16 @@ def main() -> None:
         grad_label_max=args.grad_max,
         hidden=tuple(int(w) for w in args.hidden.split(",")),
         refit_steps=args.steps,
-        batch_size=args.batch_size,
+        batch_size=stored.batch_size if args.batch_size is None else args.batch_size,
         lr=args.lr,
         sobolev_weight=args.sobolev,
-        seed=args.seed,
+        seed=stored.seed if args.seed is None else args.seed,
         torch_threads=args.threads,
         ensemble=args.ensemble,
         ensemble_pessimism=args.pessimism,
+        refit_ensemble=args.ensemble if args.candidates else stored.refit_ensemble,
+        refit_candidates=args.candidates,
+        select_episodes=args.select_episodes,
     )
     task = config.resolve_task()
     meta = json.loads((args.run / "dataset" / "dataset.json").read_text())["meta"]
@@ -71,7 +81,11 @@ def main() -> None:
     torch.set_num_threads(args.threads)  # more threads than free cores makes each small step many times slower
     start = time.perf_counter()
     trainer = _Trainer(config, make_network(config, task), None)
-    network = refit(config, task, arrays, trainer)  # the same refit as TrainConfig.refit_steps
+    if args.candidates:
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        network = refit_and_select(config, task, arrays, trainer, args.out.parent)
+    else:
+        network = refit(config, task, arrays, trainer)  # the same refit as TrainConfig.refit_steps
     used = int(_as_tensors(arrays, config.value_cap, config.grad_label_max, network)["grad_ok"].sum())
     network.save(args.out)
     result = {

@@ -158,13 +158,16 @@ def find_c_compiler() -> str | None:
 
 
 def compile_nlp_library(
-    solver: ca.Function,
+    solver: ca.Function | tuple[ca.Function, ...],
     name: str,
     cache_dir: str | os.PathLike[str] | None = None,
     fingerprint: str | None = None,
     flags: tuple[str, ...] | None = None,
 ) -> Path:
     """Generate C for the NLP functions of ``solver``, compile them once per distinct source, return the library.
+
+    ``solver`` may also be a tuple of plain CasADi Functions (e.g. :class:`~seagul_control.shooting.ShootingSolver`'s
+    condensed objective and its derivatives): they are generated into one source, loaded with ``ca.external``.
 
     ``flags``: compiler flags (default :data:`CODEGEN_FLAGS`; must make a shared library).
 
@@ -195,7 +198,13 @@ def compile_nlp_library(
         cwd = os.getcwd()
         try:
             os.chdir(tmp)
-            solver.generate_dependencies(f"{name}.c")
+            if isinstance(solver, tuple):
+                gen = ca.CodeGenerator(f"{name}.c")
+                for fn in solver:
+                    gen.add(fn)
+                gen.generate()
+            else:
+                solver.generate_dependencies(f"{name}.c")
         finally:
             os.chdir(cwd)
         src = Path(tmp) / f"{name}.c"
@@ -307,14 +316,24 @@ class Transcription:
             problem's; where they cannot, the problem stays feasible and its value says how far off they are (a
             finite, graded label where the hard value is infinite). :meth:`bound_penalties` gives the terms.
         terminal_cost: ``(x, tau_remaining, theta) -> scalar``; default the task's ``l_f(x)``.
+        terminal_model: ``(coefficients, model)``: ``(x0, tau_remaining, theta) -> c`` and
+            ``(x, tau_remaining, theta, x0, c) -> scalar``, together equal to ``terminal_cost`` to second order in
+            ``x`` at ``x = x0`` and cheap to differentiate in ``x`` (e.g. a network's hand-derived Taylor
+            coefficients, the ``"taylor"`` forms of :class:`~seagul_learn.ValueNetwork`): ``"shooting"`` takes its
+            derivatives at ``x0 = x_n`` from it instead of differentiating ``terminal_cost`` (whose values it
+            keeps); ignored by the other solvers. Its ``param_sensitivity`` then has only ``dV/dx_init`` (the other
+            entries are NaN).
         n_theta: length of ``theta`` (terminal-cost parameters).
         model_params: the task's varying physical parameters (``task.parameters``) enter the NLP as parameters after
             ``theta``: the dynamics are ``f(x, u, params)`` and one built solver serves every robot in ``Theta``
             (:meth:`solve`'s ``model_params``, default the task's own values); their sensitivities ``dV/dparams``
             are the last entries of ``param_sensitivity``.
         substeps: RK4 substeps per interval (default: the task's).
-        solver: ``"ipopt"`` or ``"fatrop"``.
-        solver_options: options merged over the defaults of that solver.
+        solver: ``"ipopt"``, ``"fatrop"`` or ``"shooting"`` (condensed single shooting over the inputs,
+            :mod:`seagul_control.shooting`: fixed steps and input bounds only, i.e. no finite state bounds on knots
+            ``1..n`` and no soft bounds; the same NLP with the states eliminated).
+        solver_options: options merged over the defaults of that solver (``"shooting.max_iter"``,
+            ``"shooting.tol"``, ... for ``"shooting"``; CasADi's JIT options there mean ``codegen``).
         codegen: compile the NLP functions to C (cached on disk; see the module docstring); falls back to the
             interpreted solver with a warning when no compiler works.
         codegen_dir: cache directory of the compiled libraries (default :func:`codegen_cache_dir`).
@@ -345,10 +364,11 @@ class Transcription:
         final_box: bool = True,
         soft_bounds_weight: float | None = None,
         terminal_cost: ca.Function | None = None,
+        terminal_model: tuple[ca.Function, ca.Function] | None = None,
         n_theta: int = 0,
         model_params: bool = False,
         substeps: int | None = None,
-        solver: Literal["ipopt", "fatrop"] = "ipopt",
+        solver: Literal["ipopt", "fatrop", "shooting"] = "ipopt",
         solver_options: dict[str, Any] | None = None,
         codegen: bool = False,
         codegen_dir: str | os.PathLike[str] | None = None,
@@ -360,8 +380,8 @@ class Transcription:
             raise ValueError(f"max_solve_time must be a positive number of seconds or None, got {max_solve_time!r}")
         if n < 1:
             raise ValueError(f"horizon must be >= 1 interval, got {horizon}")
-        if solver not in ("ipopt", "fatrop"):
-            raise ValueError(f"unknown solver {solver!r}; use 'ipopt' or 'fatrop'")
+        if solver not in ("ipopt", "fatrop", "shooting"):
+            raise ValueError(f"unknown solver {solver!r}; use 'ipopt', 'fatrop' or 'shooting'")
         if time_mode not in ("equal", "at_most", "free"):
             raise ValueError(f"unknown time_mode {time_mode!r}; use 'equal', 'at_most' or 'free'")
         self.task = task
@@ -531,6 +551,17 @@ class Transcription:
         self.initial_rows = _read_only(np.arange(nx, dtype=np.int64))
         # Initial guess used by solve() when none is passed (None: the straight line of line_guess).
         self._guess: np.ndarray | None = None
+        self.max_solve_time = None if max_solve_time is None else float(max_solve_time)
+        self._guard: ForkedSolver | None = None
+        # Stage costs and elapsed time of a solution, for per-knot labels.
+        self._stage_cost_fn = task.stage_cost.map(n)
+        self.codegen_library: Path | None = None
+        self._shooting: Any = None
+        if solver == "shooting":
+            self._build_shooting(
+                p, step_fn, terminal_cost, terminal_model, solver_options, codegen, codegen_dir, codegen_flags
+            )
+            return
         nlp = {"x": self._w, "p": p, "f": objective, "g": ca.vertcat(*g)}
         if solver == "ipopt":
             options = {**default_ipopt_options(), "expand": True, **(solver_options or {})}
@@ -539,7 +570,6 @@ class Transcription:
         else:
             options = {**default_fatrop_options(), "expand": True, "equality": equality, **(solver_options or {})}
         name = f"{task.name}_{solver}_n{n}" + ("_theta" if self.model_params else "")
-        self.codegen_library: Path | None = None
         compiled: ca.Function | None = None
         if codegen:
             try:
@@ -552,14 +582,85 @@ class Transcription:
                 warnings.warn(f"{name}: code generation unavailable ({exc}); solving interpreted", stacklevel=2)
                 self.codegen_library = None
                 compiled = None
-        self._solver: ca.Function = ca.nlpsol(name, solver, nlp, options) if compiled is None else compiled
-        self.max_solve_time = None if max_solve_time is None else float(max_solve_time)
+        self._solver: Any = ca.nlpsol(name, solver, nlp, options) if compiled is None else compiled
         # fatrop cannot stop itself inside one iteration (seagul_control._watchdog): it runs in a killable child.
-        self._guard: ForkedSolver | None = None
         if self.max_solve_time is not None and solver == "fatrop" and ForkedSolver.supported:
             self._guard = ForkedSolver(self._solver, self.max_solve_time)
-        # Stage costs and elapsed time of a solution, for per-knot labels.
-        self._stage_cost_fn = task.stage_cost.map(n)
+
+    def _build_shooting(
+        self,
+        p: ca.MX,
+        step_fn: ca.Function,
+        terminal_cost: ca.Function,
+        terminal_model: tuple[ca.Function, ca.Function] | None,
+        solver_options: dict[str, Any] | None,
+        codegen: bool,
+        codegen_dir: str | os.PathLike[str] | None,
+        codegen_flags: tuple[str, ...] | None,
+    ) -> None:
+        """The condensed problem ``J(U; p)`` of the same NLP and its :class:`~seagul_control.shooting.ShootingSolver`
+        (``solver="shooting"``; module docstring of :mod:`seagul_control.shooting`)."""
+        from seagul_control.shooting import BufferedFunction, ShootingSolver
+
+        task, n = self.task, self.horizon
+        bounded = np.isfinite(self._knot_lo) | np.isfinite(self._knot_hi)
+        problems = []
+        if self.free_time:
+            problems.append("free steps")
+        if self.soft_bounds_weight is not None:
+            problems.append("soft bounds")
+        if np.any(bounded):
+            problems.append(f"finite state bounds on knots 1..{n} (path bounds or the terminal box)")
+        if not (np.all(np.isfinite(task.u_low)) and np.all(np.isfinite(task.u_high))):
+            problems.append("infinite input bounds")
+        if problems:
+            raise ValueError(
+                f"{task.name}: solver 'shooting' needs fixed steps and input bounds only; this transcription has "
+                + ", ".join(problems)
+                + " (use 'fatrop' or 'ipopt')"
+            )
+        options = dict(solver_options or {})
+        jit = options.pop("jit", False)
+        jit_opts = options.pop("jit_options", {}) or {}
+        for key in ("compiler", "jit_name", "jit_temp_suffix", "print_time", "expand", "show_eval_warnings"):
+            options.pop(key, None)
+        own = {}
+        for key, value in options.items():
+            if not key.startswith("shooting."):
+                raise ValueError(f"solver 'shooting' does not take option {key!r}; its options are 'shooting.<name>'")
+            own[key.split(".", 1)[1]] = value
+        if jit and not codegen:
+            codegen = True
+            codegen_flags = (*jit_opts.get("flags", ("-O1",)), "-fPIC", "-shared")
+
+        if terminal_model is None:
+            fns = self._shooting_functions(p, step_fn, terminal_cost, None)
+        else:
+            # The derivatives in U of the model with x0 and c held fixed are an SX graph of the rollout (small);
+            # then x0 := x_n and c := coefficients(x_n), evaluated once, outside every derivative sweep (inlined
+            # in one MX graph, CasADi's forward sweeps of the Hessian re-evaluated the network per direction: 10x).
+            try:
+                light = terminal_model[1].expand()
+            except RuntimeError as exc:
+                raise ValueError(f"{task.name}: the terminal model must be expandable to SX ({exc})") from exc
+            fns = self._shooting_functions(p, step_fn, terminal_cost, (terminal_model[0], light))
+        name = f"{task.name}_shooting_n{n}" + ("_theta" if self.model_params else "")
+        name += "_model" if terminal_model is not None else ""
+        if codegen:
+            try:
+                self.codegen_library = compile_nlp_library(fns, name, codegen_dir, task.fingerprint(), codegen_flags)
+                lib = str(self.codegen_library)
+                fns = tuple(ca.external(fn.name(), lib) for fn in fns)  # type: ignore[assignment]
+            except (RuntimeError, OSError) as exc:
+                warnings.warn(f"{name}: code generation unavailable ({exc}); solving interpreted", stacklevel=3)
+                self.codegen_library = None
+        if self.codegen_library is None:
+            fns = tuple(fn.expand() for fn in fns)  # type: ignore[assignment]
+        lo = np.concatenate([self._lbw[idx] for idx in self._u_idx])
+        hi = np.concatenate([self._ubw[idx] for idx in self._u_idx])
+        self._shooting = ShootingSolver(fns[0], fns[1], lo, hi, **own)
+        self._solver = self._shooting
+        self._shooting_post = BufferedFunction(fns[2])
 
     def _violations(self, states: np.ndarray) -> np.ndarray:
         """``(n, nx)`` bound violations ``max(0, x - hi, lo - x)`` of knots ``1..n``."""
@@ -767,6 +868,8 @@ class Transcription:
             args["lam_g0"] = lam_g
         if lam_x is not None:
             args["lam_x0"] = lam_x
+        if self._shooting is not None:
+            return self._solve_shooting(w0, p, float(tau))
         call: Any = self._solver if self._guard is None else self._guard
         start = time.perf_counter()
         try:
@@ -803,6 +906,117 @@ class Transcription:
             primal=w,
             lam_g=lam_g_out,
             lam_x=np.asarray(out["lam_x"]).ravel(),
+        )
+
+    def _shooting_functions(
+        self,
+        p_mx: ca.MX,
+        step_fn: ca.Function,
+        terminal_cost: ca.Function,
+        terminal_model: tuple[ca.Function, ca.Function] | None,
+    ) -> tuple[ca.Function, ca.Function, ca.Function]:
+        """``f: (U, p) -> J``, ``fgh: (U, p) -> (J, dJ/dU, d2J/dU2)`` and ``post: (U, p) -> (states, costates,
+        dJ/dp)`` of the condensed problem; with ``terminal_model`` the derivatives come from the model."""
+        task, n, nx, nu = self.task, self.horizon, self.task.nx, self.task.nu
+        n_p = int(p_mx.numel())
+        name = f"{task.name}_shooting_n{n}"
+        dense = ca.densify
+
+        def step_of(p: Any) -> Any:
+            return p[nx] / n if self.step is None else self.step
+
+        def rollout(U: Any, p: Any, perturb: Any, end: Any) -> tuple[Any, list[Any]]:
+            x_init, tau, h = p[:nx], p[nx], step_of(p)
+            phys = [p[nx + 1 + self.n_theta :]] if self.model_params else []
+            x = x_init if perturb is None else x_init + perturb[:, 0]
+            states, total = [x], 0
+            for k in range(n):
+                u_k = U[k * nu : (k + 1) * nu]
+                total = total + h * task.stage_cost(x, u_k)
+                x = step_fn(x, u_k, h, *phys)
+                if perturb is not None:
+                    x = x + perturb[:, k + 1]
+                states.append(x)
+            return total + end(x, tau - n * h), states
+
+        theta_slice = slice(nx + 1, nx + 1 + self.n_theta)
+        U = ca.MX.sym("U", n * nu)
+        J, states = rollout(U, p_mx, None, lambda x, t: terminal_cost(x, t, p_mx[theta_slice]))
+        f = ca.Function(f"{name}_f", [U, p_mx], [J])
+        if terminal_model is None:
+            D = ca.MX.sym("D", nx, n + 1)
+            H, grad = ca.hessian(J, U)
+            Jd, _ = rollout(U, p_mx, D, lambda x, t: terminal_cost(x, t, p_mx[theta_slice]))
+            costates = ca.substitute(ca.jacobian(Jd, ca.vec(D)), D, ca.DM.zeros(nx, n + 1))
+            fgh = ca.Function(f"{name}_fgh", [U, p_mx], [J, dense(grad), dense(H)])
+            outputs = [dense(ca.horzcat(*states)), dense(costates), dense(ca.jacobian(J, p_mx).T)]
+            return f, fgh, ca.Function(f"{name}_post", [U, p_mx], outputs)
+        coeff_fn, model = terminal_model
+        # The light part in SX: the rollout, the stage costs and the terminal model with x0 and c as inputs.
+        Us, ps = ca.SX.sym("U", n * nu), ca.SX.sym("p", n_p)
+        X0, C = ca.SX.sym("x0", nx), ca.SX.sym("c", int(coeff_fn.nnz_out(0)))
+        Ds = ca.SX.sym("D", nx, n + 1)
+
+        def end(x: Any, t: Any) -> Any:
+            return model(x, t, ps[theta_slice], X0, C)
+
+        Jl, states_s = rollout(Us, ps, None, end)
+        Hl, gl = ca.hessian(Jl, Us)
+        Jdl, _ = rollout(Us, ps, Ds, end)
+        cost_l = ca.substitute(ca.jacobian(Jdl, ca.vec(Ds)), ca.vec(Ds), ca.DM.zeros(nx * (n + 1), 1))
+        light = ca.Function(f"{name}_light", [Us, ps, X0, C], [Jl, dense(gl), dense(Hl)])
+        light_post = ca.Function(f"{name}_light_post", [Us, ps, X0, C], [dense(cost_l)])
+        roll = ca.Function(f"{name}_roll", [Us, ps], [dense(ca.horzcat(*states_s))])
+        traj = roll(U, p_mx)
+        x_n = traj[:, n]
+        coeffs = coeff_fn(x_n, p_mx[nx] - n * step_of(p_mx), p_mx[theta_slice])
+        j_l, g_l, h_l = light(U, p_mx, x_n, coeffs)
+        c_l = light_post(U, p_mx, x_n, coeffs)
+        fgh = ca.Function(f"{name}_fgh", [U, p_mx], [j_l, g_l, h_l])
+        sens = ca.vertcat(c_l[:nx].T, ca.DM.nan(n_p - nx, 1))
+        post = ca.Function(f"{name}_post", [U, p_mx], [traj, dense(c_l), dense(sens)])
+        return f, fgh, post
+
+    def _solve_shooting(self, w0: np.ndarray, p: np.ndarray, tau: float) -> TranscriptionSolution:
+        """:meth:`solve` with ``solver="shooting"``: the inputs of ``w0`` start the condensed solve; the result is
+        laid out as the lifted NLP's (states rolled out, multipliers from the costates)."""
+        start = time.perf_counter()
+        u_idx = np.concatenate(self._u_idx)
+        res = self._shooting.solve(w0[u_idx], p, self._lbw[u_idx], self._ubw[u_idx], self.max_solve_time)
+        self._shooting_post.set_input(1, p)
+        states_t, costates, dj_dp = (o.T.copy() for o in self._shooting_post(res.controls))
+        elapsed = time.perf_counter() - start
+        nx, n = self.task.nx, self.horizon
+        states = np.asarray(states_t, dtype=float).reshape(nx, n + 1).T
+        lam_states = np.asarray(costates, dtype=float).reshape(n + 1, nx)  # column-major vec(D): knot by knot
+        controls = res.controls.reshape(n, self.task.nu)
+        w = self.pack_guess(states, controls)
+        # Multipliers in CasADi's convention for the lifted NLP: rows x_{k+1} - F carry -dV_{k+1}/dx_{k+1}, the
+        # initial rows x_0 - x_init carry dV/dx_0; the input bounds carry -dJ/du where a bound is active.
+        lam_g = np.zeros(self._lbg.size)
+        lam_g[self.initial_rows] = lam_states[0]
+        for k, rows in enumerate(self._defect_rows):
+            lam_g[rows] = -lam_states[k + 1]
+        lam_x = np.zeros(self._lbw.size)
+        if res.success:
+            grad = self._shooting.gradient(res.controls, p)
+            at_bound = (res.controls <= self._lbw[u_idx] + 1e-9) | (res.controls >= self._ubw[u_idx] - 1e-9)
+            lam_x[u_idx] = np.where(at_bound, -grad, 0.0)
+        ok = res.success and bool(np.all(np.isfinite(w)))
+        return TranscriptionSolution(
+            success=ok,
+            status=res.status,
+            objective=res.objective,
+            states=states,
+            controls=controls,
+            steps=np.full(n, tau / n if self.step is None else self.step),
+            param_sensitivity=np.asarray(dj_dp, dtype=float).ravel(),
+            defect_multipliers=lam_states[1:].copy(),
+            iterations=res.iterations,
+            solve_time=elapsed,
+            primal=w,
+            lam_g=lam_g,
+            lam_x=lam_x,
         )
 
     def _failed(self, w0: np.ndarray, status: str, elapsed: float) -> TranscriptionSolution:

@@ -67,6 +67,8 @@ SELECTIONS = ("farthest", "spread", "lowest", "random")
 _STREAM_EPISODE_STARTS = 11
 _STREAM_SELECTION = 12
 _STREAM_EPISODE_ROBOTS = 14
+_STREAM_VISITED = 15
+_STREAM_SELECT_STARTS = 16
 
 
 @dataclass(frozen=True)
@@ -99,6 +101,11 @@ class ClosedLoopOptions:
     anyway."""
     max_step_time: float = 5.0
     """IPOPT wall-time limit per collecting MPC step (s); a step that hits it falls back like any failed solve."""
+    visited_fraction: float = 0.0
+    """Share of each round's tail solves started from the states the collecting episodes *visited* ``(x_t, tau_t)``
+    instead of the planned terminal states (DAgger's labels: the optimal continuation from where the learned
+    controller actually went, whose first knots are the terminal states the planner should have chosen). States of
+    episodes that failed come first; fixed-step tasks only."""
 
     def __post_init__(self) -> None:
         if self.episodes < 1:
@@ -121,6 +128,8 @@ class ClosedLoopOptions:
             raise ValueError(f"closed-loop max_step_time must be > 0 s, got {self.max_step_time}")
         if self.uniform_solves < 0:
             raise ValueError(f"closed-loop uniform_solves must be >= 0, got {self.uniform_solves}")
+        if not 0.0 <= self.visited_fraction <= 1.0:
+            raise ValueError(f"closed-loop visited_fraction must be in [0, 1], got {self.visited_fraction}")
 
 
 @dataclass
@@ -141,6 +150,14 @@ class Queries:
     """Steps whose action did not come from a converged solve."""
     steps: int
     """Steps run."""
+    visited_x: np.ndarray | None = None
+    """``(v, nx)`` states the episodes visited before each step (not the last state), when recorded."""
+    visited_tau: np.ndarray | None = None
+    """``(v,)`` their times to go (snapped to the step grid)."""
+    visited_failed: np.ndarray | None = None
+    """``(v,)`` True where the visited state belongs to an episode that did not succeed."""
+    visited_theta: np.ndarray | None = None
+    """``(v, k)`` the simulated robot of each visited state's episode (over robots), else None."""
 
 
 def snap_tau(task: Task, tau: float) -> float:
@@ -152,12 +169,18 @@ def snap_tau(task: Task, tau: float) -> float:
 
 
 def collect_queries(
-    task: Task, policy: Any, starts: np.ndarray, env_id: str | None = None, robots: np.ndarray | None = None
+    task: Task,
+    policy: Any,
+    starts: np.ndarray,
+    env_id: str | None = None,
+    robots: np.ndarray | None = None,
+    record_visited: bool = False,
 ) -> Queries:
     """Run ``policy`` (an MPC with ``stats``) from every start and gather its planned terminal states.
 
     ``robots`` (one row of parameters per start): episode ``i`` simulates the robot ``robots[i]``, and each query
-    carries the robot its plan was made for (``MPCStepInfo.terminal_theta``).
+    carries the robot its plan was made for (``MPCStepInfo.terminal_theta``). ``record_visited`` (fixed-step tasks):
+    also the states each episode visited before its steps, with their times to go ``tau_nominal - t h``.
     """
     from seagul_control.evaluation import run_policy_episode
 
@@ -168,9 +191,23 @@ def collect_queries(
     taus: list[float] = []
     thetas: list[tuple[float, ...]] = []
     successes = fallbacks = steps = 0
+    if record_visited and not task.fixed_step:
+        raise ValueError(f"{task.name}: visited-state tails need a fixed-step task (the time to go of a state)")
+    vx: list[list[float]] = []
+    vtau: list[float] = []
+    vfail: list[bool] = []
+    vtheta: list[np.ndarray] = []
     for i, x0 in enumerate(starts):
         robot = None if robots is None else robots[i]
-        episode, infos = run_policy_episode(task, policy, x0, env_id=env_id, robot=robot)
+        episode, infos = run_policy_episode(task, policy, x0, env_id=env_id, robot=robot, record=record_visited)
+        if record_visited:
+            h = task.control_period
+            for t, state in enumerate(episode.states[:-1]):
+                vx.append(state)
+                vtau.append(snap_tau(task, task.tau_nominal - t * h))
+                vfail.append(not episode.success)
+                if robot is not None:
+                    vtheta.append(np.asarray(robot, dtype=np.float64))
         successes += int(episode.success)
         fallbacks += episode.fallbacks
         steps += episode.steps
@@ -186,7 +223,13 @@ def collect_queries(
     theta = None
     if robots is not None:
         theta = np.array(thetas, dtype=np.float64).reshape(x.shape[0], np.asarray(robots).shape[1])
-    return Queries(x, np.array(taus, dtype=np.float64), theta, starts.shape[0], successes, fallbacks, steps)
+    out = Queries(x, np.array(taus, dtype=np.float64), theta, starts.shape[0], successes, fallbacks, steps)
+    if record_visited:
+        out.visited_x = np.array(vx, dtype=np.float64).reshape(-1, task.nx)
+        out.visited_tau = np.array(vtau, dtype=np.float64)
+        out.visited_failed = np.array(vfail, dtype=bool)
+        out.visited_theta = np.array(vtheta).reshape(len(vx), -1) if robots is not None else None
+    return out
 
 
 def farthest_first(candidates: np.ndarray, known: np.ndarray, k: int) -> np.ndarray:
@@ -313,8 +356,12 @@ class ClosedLoopSampler:
 
     # ------------------------------------------------------------------------------- selection
     def _eligible(self, queries: Queries) -> np.ndarray:
-        keep = np.ones(queries.tau.shape[0], dtype=bool)
-        for i, tau in enumerate(queries.tau):
+        return self._eligible_tails(queries.x, queries.tau)
+
+    def _eligible_tails(self, xs: np.ndarray, taus: np.ndarray) -> np.ndarray:
+        """Indices of the ``(x, tau)`` rows that are tails of the full problem on the stride, with finite states."""
+        keep = taus > 0
+        for i, tau in enumerate(taus):
             try:
                 k = tail_horizon(self.task, float(tau))
             except ValueError:
@@ -322,8 +369,19 @@ class ClosedLoopSampler:
                 continue
             if k is not None and k % self.options.tail_stride:
                 keep[i] = False
-        keep &= np.all(np.isfinite(queries.x), axis=1)
+        keep &= np.all(np.isfinite(xs), axis=1)
         return np.flatnonzero(keep)
+
+    def select_visited(self, queries: Queries, k: int) -> np.ndarray:
+        """Indices of ``k`` visited states to solve tails from: states of failed episodes first, each group in a
+        seeded random order (stream ``[seed, 15, round]``)."""
+        if queries.visited_x is None or queries.visited_tau is None or queries.visited_failed is None or k <= 0:
+            return np.zeros(0, dtype=np.int64)
+        eligible = self._eligible_tails(queries.visited_x, queries.visited_tau)
+        rng = np.random.default_rng([self.seed, _STREAM_VISITED, self.round])
+        order = eligible[rng.permutation(eligible.size)]
+        order = np.concatenate([order[queries.visited_failed[order]], order[~queries.visited_failed[order]]])
+        return np.sort(order[: min(int(k), order.size)])
 
     def select(self, queries: Queries, network: ValueModel, k: int) -> np.ndarray:
         """Indices of the ``k`` queries to solve (see ``selection``)."""
@@ -390,8 +448,12 @@ class ClosedLoopSampler:
         if n_tail > 0:
             mpc = self.collector(network)
             entry["collector"] = mpc.trust_region
-            queries = collect_queries(self.task, mpc, self.episode_starts(), robots=self.episode_robots())
-            chosen = self.select(queries, network, n_tail)
+            n_visited = round(self.options.visited_fraction * n_tail)
+            queries = collect_queries(
+                self.task, mpc, self.episode_starts(), robots=self.episode_robots(), record_visited=n_visited > 0
+            )
+            visited = self.select_visited(queries, n_visited)
+            chosen = self.select(queries, network, n_tail - int(visited.size))
             entry.update(
                 episodes=queries.episodes,
                 episode_successes=queries.successes,
@@ -399,12 +461,19 @@ class ClosedLoopSampler:
                 steps=queries.steps,
                 queries=int(queries.tau.shape[0]),
                 tails=int(chosen.size),
+                visited_tails=int(visited.size),
             )
-            n_uniform += n_tail - int(chosen.size)
+            n_uniform += n_tail - int(chosen.size) - int(visited.size)
             self.loop_rounds += 1
             if chosen.size:
                 thetas = None if queries.theta is None else queries.theta[chosen]
                 records += runner.solve(queries.x[chosen], queries.tau[chosen], self.name, thetas=thetas)
+            if visited.size:
+                assert queries.visited_x is not None and queries.visited_tau is not None
+                vthetas = None if queries.visited_theta is None else queries.visited_theta[visited]
+                records += runner.solve(
+                    queries.visited_x[visited], queries.visited_tau[visited], self.name + "-visited", thetas=vthetas
+                )
         if n_uniform:
             starts, taus, ids = self.pool.take(n_uniform)
             records += runner.solve(starts, taus, "uniform-mix", thetas=self.pool.thetas_of(ids))
@@ -413,6 +482,85 @@ class ClosedLoopSampler:
         self.log.append(entry)
         self.round += 1
         return records
+
+
+# ------------------------------------------------------------------------------------------ member selection
+@dataclass(frozen=True)
+class MemberSelection:
+    """Which members of a candidate ensemble the deployed MPC flies best with (:func:`select_members`)."""
+
+    members: tuple[int, ...]
+    """The chosen members' indices."""
+    success: float
+    """Their MPC's success rate on the selection episodes."""
+    scores: dict[tuple[int, ...], float]
+    """Success rate of every subset tried."""
+    episodes: int
+    """Selection episodes per subset (training starts from X0, stream ``[seed, 16]``)."""
+
+    def as_dict(self) -> dict[str, Any]:
+        """Plain dict (JSON)."""
+        return {
+            "members": list(self.members),
+            "success": self.success,
+            "episodes": self.episodes,
+            "scores": {",".join(map(str, k)): v for k, v in self.scores.items()},
+        }
+
+
+def select_members(
+    task: Task,
+    candidates: ValueEnsemble,
+    size: int,
+    episodes: int,
+    seed: int,
+    *,
+    horizon: int | None = None,
+    trust_region: str = "none",
+    jit: bool = True,
+    progress: bool = False,
+) -> MemberSelection:
+    """The ``size`` members of ``candidates`` whose ensemble the deployed MPC flies best: every subset drives a
+    ``LimitedLookaheadMPC(task, subset, horizon, trust_region=...)`` (one build, re-parameterised per subset) in
+    closed loop from the same ``episodes`` training starts drawn uniformly from X0 (stream ``[seed, 16]``; never an
+    evaluation grid or held-out set), and the subset with the most successes wins (ties: the first in
+    lexicographic order). Model selection on training episodes by the metric that matters, at no NLP solve:
+    refits of one buffer differ by tens of points of closed-loop success (docs/closed_loop.md, twelfth session).
+    """
+    import itertools
+
+    from seagul_control.evaluation import default_horizon, run_policy_episode
+    from seagul_control.mpc import LimitedLookaheadMPC
+
+    k = len(candidates.members)
+    if not 2 <= int(size) <= k:
+        raise ValueError(f"select_members: size must be in 2..{k} (the candidates' members), got {size}")
+    if int(episodes) < 1:
+        raise ValueError(f"select_members: episodes must be >= 1, got {episodes}")
+    if candidates.n_params:
+        raise ValueError("select_members: candidates over robots are not supported (select on the nominal model)")
+    starts = task.sample_x0(np.random.default_rng([int(seed), _STREAM_SELECT_STARTS]), int(episodes))
+    subsets = list(itertools.combinations(range(k), int(size)))
+    mpc: Any = None
+    scores: dict[tuple[int, ...], float] = {}
+    from tqdm import tqdm
+
+    for subset in tqdm(subsets, desc="member selection", unit="subset", disable=not progress):
+        ensemble = candidates.subset(subset)
+        if mpc is None:
+            mpc = LimitedLookaheadMPC(
+                task,
+                ensemble,
+                horizon or default_horizon(task),
+                trust_region=trust_region,  # type: ignore[arg-type]
+                jit=jit,
+            )
+        else:
+            mpc.set_value_function(ensemble)
+        wins = sum(int(run_policy_episode(task, mpc, x0)[0].success) for x0 in starts)
+        scores[subset] = wins / float(episodes)
+    best = max(subsets, key=lambda s: scores[s])  # max keeps the first of equal scores
+    return MemberSelection(best, scores[best], scores, int(episodes))
 
 
 # ------------------------------------------------------------------------------------------ planner-query error

@@ -172,6 +172,10 @@ class TrainConfig:
     """Closed-loop: budget solves spent on uniform draws before the first closed-loop round."""
     cl_jit: bool = True
     """Closed-loop: compile the collecting MPC (False: interpreted, for tests)."""
+    cl_visited_fraction: float = 0.0
+    """Closed-loop: share of each round's tail solves started from states the collecting episodes visited (states
+    of failed episodes first) rather than from the planner's queries: the optimal continuation from where the
+    learned controller went, DAgger's labels (fixed-step tasks)."""
     cl_collect_refit: bool = False
     """Closed-loop: each round after the ``"lqr"`` warm-up rounds collects with a refit of the buffer so far
     (``refit_steps`` Adam steps, as the final refit: the network that would be deployed if training stopped there)
@@ -205,6 +209,16 @@ class TrainConfig:
     own initial weights, with ``ensemble_pessimism``). The members' errors are partly independent, so the planner
     finds fewer under-estimates in their mean (docs/closed_loop.md); the loop's and the collecting refits' networks
     stay single unless ``ensemble`` is set."""
+    refit_candidates: int = 0
+    """Fit this many members in the final refit (``> refit_ensemble``) and deploy the ``refit_ensemble`` of them whose
+    MPC (horizon ``cl_horizon``, guard ``cl_trust_region``) succeeds most often in closed loop from
+    ``select_episodes`` training starts drawn from X0 (never an evaluation set): refits of one buffer differ by
+    tens of points of closed-loop success. The candidates are kept as ``network_candidates.pt``, the scores in
+    ``network_selection.json`` (0 = off)."""
+    select_episodes: int = 100
+    """Closed-loop episodes per candidate subset of ``refit_candidates``."""
+    select_jit: bool = True
+    """Compile the MPC of the ``refit_candidates`` selection (False: interpreted, for tests)."""
     snapshots: tuple[int, ...] = ()
     """Budgets (solves) after whose round ``network_<solves>.pt`` is saved (success-per-solve curves from one run)."""
     uniform_tau: bool = False
@@ -283,6 +297,18 @@ class TrainConfig:
         self.closed_loop_options()  # validates the cl_* fields
         if self.refit_ensemble < 0 or (self.refit_ensemble >= 2 and not self.refit_steps):
             raise ValueError(f"refit_ensemble must be >= 0 and needs refit_steps > 0, got {self.refit_ensemble}")
+        if self.refit_candidates and not (self.refit_ensemble >= 2 and self.refit_candidates > self.refit_ensemble):
+            raise ValueError(
+                "refit_candidates must exceed refit_ensemble (>= 2) or be 0, got "
+                f"{self.refit_candidates} candidates for {self.refit_ensemble} members"
+            )
+        if self.refit_candidates and math.comb(self.refit_candidates, self.refit_ensemble) > 252:
+            raise ValueError(
+                f"refit_candidates: C({self.refit_candidates}, {self.refit_ensemble}) subsets is too many to try "
+                "(at most 252)"
+            )
+        if self.select_episodes < 1:
+            raise ValueError(f"select_episodes must be >= 1, got {self.select_episodes}")
         if self.cl_collect_refit and not self.refit_steps:
             raise ValueError("cl_collect_refit needs refit_steps > 0 (the collecting network is a refit)")
         if self.cl_keep_best and (self.sampler != "closed-loop" or self.refit_steps):
@@ -325,6 +351,7 @@ class TrainConfig:
             uniform_fraction=self.cl_uniform_fraction,
             uniform_solves=self.cl_uniform_solves,
             jit=self.cl_jit,
+            visited_fraction=self.cl_visited_fraction,
         )
 
     def adversarial_options(self) -> AdversarialOptions:
@@ -887,7 +914,10 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
 
     if config.refit_steps:
         network.save(out / "network_loop.pt")
-        network = refit(config.final_refit_config(), task, buffer, trainer)
+        if config.refit_candidates:
+            network = refit_and_select(config, task, buffer, trainer, out)
+        else:
+            network = refit(config.final_refit_config(), task, buffer, trainer)
         trainer.record_metric(
             len(budget_records), count_failures(budget_records), config.pretrain_solves + len(budget_records)
         )
@@ -926,6 +956,38 @@ def refit(
         count_steps=round_index is None,
         cosine=True,
     )
+    return network
+
+
+def refit_and_select(
+    config: TrainConfig, task: Task, buffer: TrainingArrays, trainer: _Trainer, out: Path
+) -> ValueModel:
+    """``refit_candidates``: refit ``refit_candidates`` members to the whole buffer (as :func:`refit`), save them as
+    ``network_candidates.pt``, and return the ``refit_ensemble`` of them whose deployed MPC succeeds most often on
+    ``select_episodes`` training starts (:func:`seagul_learn.closed_loop.select_members`; the scores go to
+    ``network_selection.json``). Deterministic (the refit, the starts and the MPC are)."""
+    from seagul_learn.closed_loop import select_members
+
+    candidates = refit(replace(config, ensemble=config.refit_candidates), task, buffer, trainer)
+    if not isinstance(candidates, ValueEnsemble):
+        raise TypeError("refit_candidates: the candidate refit must be an ensemble")
+    candidates.save(out / "network_candidates.pt")
+    start = time.perf_counter()
+    chosen = select_members(
+        task,
+        candidates,
+        config.refit_ensemble,
+        config.select_episodes,
+        config.seed,
+        horizon=config.cl_horizon or None,
+        trust_region=config.cl_trust_region,
+        jit=config.select_jit,
+        progress=config.progress,
+    )
+    info = {**chosen.as_dict(), "wall_s": round(time.perf_counter() - start, 1), "candidates": config.refit_candidates}
+    atomic_write_text(out / "network_selection.json", json.dumps(info, indent=1) + "\n")
+    network = candidates.subset(chosen.members, pessimism=config.ensemble_pessimism)
+    trainer.network = network
     return network
 
 

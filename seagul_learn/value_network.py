@@ -61,7 +61,7 @@ class ValueNetworkConfig:
 
 
 _Forward: TypeAlias = Callable[..., torch.Tensor]
-CasadiForm: TypeAlias = Literal["scalar", "matrix"]
+CasadiForm: TypeAlias = Literal["scalar", "matrix", "taylor", "taylor_model"]
 """How a value function's CasADi graph is built: ``"scalar"`` (SX) or ``"matrix"`` (MX of dense products)."""
 
 
@@ -322,7 +322,16 @@ class ValueNetwork(nn.Module):
         ``form="scalar"`` (default) is an SX graph, what an interpreted, expanded NLP wants; ``form="matrix"`` is
         the same function as an MX graph of matrix-vector products, what compiled code wants: its exact Hessian is
         a few dozen dense products (the MPC's compiled lookahead, 46 kB of C for a 3 x (2 x 64) ensemble, where
-        the scalar form's expansion was 30 MB that gcc did not finish in 21 CPU-minutes)."""
+        the scalar form's expansion was 30 MB that gcc did not finish in 21 CPU-minutes).
+
+        Two forms serve the condensed MPC solver (``seagul_control.shooting``), which needs the value's derivatives
+        in ``x`` only, where CasADi's own Hessian of the matrix form costs tens of evaluations of the network:
+        ``form="taylor"`` is ``(x0, tau, theta) -> c`` with ``c = [V, dV/dx, vec(d2V/dx2)]`` at ``(x0, tau)`` from
+        hand-derived formulas (MX; for a tanh MLP ``a_l = W_l h_{l-1} + b_l``, ``h_l = tanh(a_l)``, with
+        ``A_l = da_l/dx`` forward and the adjoints ``delta_l = dV/dh_l`` backward,
+        ``d2V/dx2 = sum_l A_l' diag(delta_l * tanh''(a_l)) A_l``), and ``form="taylor_model"`` is
+        ``(x, x0, c) -> V0 + g (x - x0) + 1/2 (x - x0)' H (x - x0)``: together equal to ``V`` to second order in
+        ``x`` at ``x = x0``."""
         return _casadi_network(self.nx, self.config.hidden, _check_form(form), self.n_params)
 
     def to_casadi(self) -> ca.Function:
@@ -481,6 +490,24 @@ class ValueEnsemble(nn.Module):
         """The ensemble mean."""
         return torch.stack([m(x, tau, theta) for m in self.members]).mean(dim=0)
 
+    def subset(self, indices: Sequence[int], pessimism: float | None = None) -> ValueEnsemble:
+        """A new ensemble of copies of the members ``indices`` (in that order; at least 2, no repeats), with this
+        ensemble's pessimism unless ``pessimism`` is given."""
+        idx = [int(i) for i in indices]
+        if len(idx) < 2 or len(set(idx)) != len(idx) or not all(0 <= i < len(self.members) for i in idx):
+            raise ValueError(f"subset needs >= 2 distinct member indices in 0..{len(self.members) - 1}, got {idx}")
+        out = ValueEnsemble(
+            self.nx,
+            self.config.hidden,
+            len(idx),
+            self.pessimism if pessimism is None else float(pessimism),
+            task_name=self.task_name,
+            n_params=self.n_params,
+        )
+        for k, i in enumerate(idx):
+            out.members[k].load_state_dict(self.members[i].state_dict())
+        return out
+
     def spread(self, x: Any, tau: Any, theta: Any = None) -> np.ndarray:
         """Standard deviation over members at a batch (NumPy); ``theta``: the robots of an ensemble over robots."""
         with torch.no_grad():
@@ -518,8 +545,11 @@ class ValueEnsemble(nn.Module):
         key = (self.nx, self.config.hidden, len(self.members), form, self.n_params)
         if key not in _ENSEMBLE_CACHE:
             one = _casadi_network(self.nx, self.config.hidden, form, self.n_params)
-            n = int(one.nnz_in(2))
+            n = _num_parameters(self.nx, self.config.hidden, self.n_params)
             k = len(self.members)
+            if form in ("taylor", "taylor_model"):
+                _ENSEMBLE_CACHE[key] = _taylor_ensemble(one, self.nx, k, n, self.SPREAD_EPS, form)
+                return _ENSEMBLE_CACHE[key]
             sym: Any = ca.MX if form == "matrix" else ca.SX
             x, tau = sym.sym("x", self.nx), sym.sym("tau", 1)
             theta = sym.sym("theta", k * n + 1)
@@ -605,8 +635,8 @@ _CASADI_CACHE: dict[tuple[int, tuple[int, ...], str, int], ca.Function] = {}
 
 
 def _check_form(form: Any) -> CasadiForm:
-    if form not in ("scalar", "matrix"):
-        raise ValueError(f"casadi_function form must be 'scalar' or 'matrix', got {form!r}")
+    if form not in ("scalar", "matrix", "taylor", "taylor_model"):
+        raise ValueError(f"casadi_function form must be 'scalar', 'matrix', 'taylor' or 'taylor_model', got {form!r}")
     return cast(CasadiForm, form)
 
 
@@ -619,7 +649,7 @@ def _casadi_network(nx: int, hidden: tuple[int, ...], form: CasadiForm = "scalar
     n_in = nx + 1 + n_params
     widths = [n_in, *hidden, 1]
     n_theta = _num_parameters(nx, hidden, n_params)
-    sym: Any = ca.MX if form == "matrix" else ca.SX
+    sym: Any = ca.SX if form == "scalar" else ca.MX
     x = sym.sym("x", nx)
     tau = sym.sym("tau", 1)
     theta = sym.sym("theta", n_theta)
@@ -633,6 +663,10 @@ def _casadi_network(nx: int, hidden: tuple[int, ...], form: CasadiForm = "scalar
 
     in_mean, in_std = take(n_in), take(n_in)
     condition = theta[n_theta - n_params :]  # the robot (empty for a plain network), after the output statistics
+    if form in ("taylor", "taylor_model"):
+        fn = _taylor_network(x, tau, theta, condition, in_mean, in_std, take, widths, form)
+        _CASADI_CACHE[key] = fn
+        return fn
     h = (ca.vertcat(x, tau, condition) - in_mean) / in_std
     for i, (a, b) in enumerate(itertools.pairwise(widths)):
         # torch stores W as (out, in) row-major; CasADi reshapes column-major, hence the transpose.
@@ -646,3 +680,75 @@ def _casadi_network(nx: int, hidden: tuple[int, ...], form: CasadiForm = "scalar
     fn = ca.Function("value_network_theta", [x, tau, theta], [value], ["x", "tau", "theta"], ["V"])
     _CASADI_CACHE[key] = fn
     return fn
+
+
+def _taylor_network(
+    x: ca.MX,
+    tau: ca.MX,
+    theta: ca.MX,
+    condition: ca.MX,
+    in_mean: ca.MX,
+    in_std: ca.MX,
+    take: Any,
+    widths: list[int],
+    form: str,
+) -> ca.Function:
+    """The ``"taylor"`` and ``"taylor_model"`` forms (:meth:`ValueNetwork.casadi_function`): the network's value,
+    gradient and Hessian in ``x`` at ``x0`` from explicit forward (``A_l = da_l/dx``) and backward
+    (``delta_l = dV/dh_l``) passes of dense products, and the quadratic they define."""
+    nx = x.numel()
+    if form == "taylor_model":
+        return _taylor_quadratic(nx)
+    n_in = widths[0]
+    h = (ca.vertcat(x, tau, condition) - in_mean) / in_std
+    jac = ca.vertcat(ca.diag(1.0 / in_std[:nx]), ca.MX.zeros(n_in - nx, nx))  # dz/dx
+    layers = []
+    for i, (a, b) in enumerate(itertools.pairwise(widths)):
+        weight = ca.reshape(take(a * b), a, b).T
+        bias = take(b)
+        if i == len(widths) - 2:
+            last_weight, last_bias = weight, bias
+            break
+        pre_jac = ca.mtimes(weight, jac)  # A_l
+        h = ca.tanh(ca.mtimes(weight, h) + bias)
+        slope = 1 - h**2  # tanh'
+        jac = pre_jac * ca.repmat(slope, 1, nx)
+        layers.append((weight, pre_jac, h, slope))
+    out_mean, out_std = take(1), take(1)
+    value = (ca.mtimes(last_weight, h) + last_bias) * out_std + out_mean
+    grad = out_std * ca.mtimes(last_weight, jac)  # (1, nx)
+    delta = out_std * last_weight.T  # dV/dh of the last hidden layer
+    hess = ca.MX.zeros(nx, nx)
+    for weight, pre_jac, act, slope in reversed(layers):
+        curv = delta * (-2 * act * slope)  # dV/dh * tanh''(a)
+        hess = hess + ca.mtimes(pre_jac.T, pre_jac * ca.repmat(curv, 1, nx))
+        delta = ca.mtimes(weight.T, delta * slope)
+    coeffs = ca.vertcat(value, grad.T, ca.vec(hess))
+    return ca.Function("value_network_taylor", [x, tau, theta], [coeffs], ["x0", "tau", "theta"], ["c"])
+
+
+def _taylor_quadratic(nx: int) -> ca.Function:
+    """``(x, x0, c) -> c[0] + g (x - x0) + 1/2 (x - x0)' H (x - x0)`` with ``c = [V, g, vec(H)]``."""
+    x, x0, c = ca.SX.sym("x", nx), ca.SX.sym("x0", nx), ca.SX.sym("c", 1 + nx + nx * nx)
+    d = x - x0
+    hess = ca.reshape(c[1 + nx :], nx, nx)
+    model = c[0] + ca.dot(c[1 : 1 + nx], d) + 0.5 * ca.dot(d, ca.mtimes(hess, d))
+    return ca.Function("value_taylor_model", [x, x0, c], [model], ["x", "x0", "c"], ["V"])
+
+
+def _taylor_ensemble(one: ca.Function, nx: int, k: int, n: int, eps: float, form: str) -> ca.Function:
+    """The ensemble's ``"taylor"`` (every member's coefficients, then the pessimism) and ``"taylor_model"`` (mean
+    plus pessimism times spread of the members' quadratics: equal to the ensemble to second order at ``x0``)."""
+    nc = 1 + nx + nx * nx
+    if form == "taylor":
+        x0, tau, theta = ca.MX.sym("x0", nx), ca.MX.sym("tau", 1), ca.MX.sym("theta", k * n + 1)
+        coeffs = [one.call([x0, tau, theta[i * n : (i + 1) * n]], True, False)[0] for i in range(k)]
+        out = ca.vertcat(*coeffs, theta[k * n])
+        return ca.Function("value_ensemble_taylor", [x0, tau, theta], [out], ["x0", "tau", "theta"], ["c"])
+    quad = _taylor_quadratic(nx)
+    xs, x0s, c = ca.SX.sym("x", nx), ca.SX.sym("x0", nx), ca.SX.sym("c", k * nc + 1)
+    values = [quad(xs, x0s, c[i * nc : (i + 1) * nc]) for i in range(k)]
+    mean = sum(values) / k
+    var = sum((v - mean) ** 2 for v in values) / k
+    value = mean + c[k * nc] * (ca.sqrt(var + eps**2) - eps)
+    return ca.Function("value_ensemble_taylor_model", [xs, x0s, c], [value], ["x", "x0", "c"], ["V"])

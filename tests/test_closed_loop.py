@@ -363,3 +363,113 @@ def test_keep_best_deploys_the_network_the_best_collector_flew(tmp_path):
     np.testing.assert_array_equal(
         result.network.casadi_parameters(), ValueNetwork.load(run / "network.pt").casadi_parameters()
     )
+
+
+def test_visited_fraction_solves_tails_from_the_states_the_episodes_visited(tmp_path):
+    """``cl_visited_fraction``: that share of a closed-loop round's tails starts at states the collecting episode
+    visited (with their times to go on the step grid), the rest at planner queries; the budget is spent exactly and
+    a re-run asks for the same problems."""
+    task = make_task("acrobot")
+    with pytest.raises(ValueError, match="visited_fraction"):
+        ClosedLoopOptions(visited_fraction=1.5)
+
+    def run(name):
+        cfg = _cl_config(tmp_path / name, cl_visited_fraction=0.5, cl_uniform_fraction=0.0, cl_tail_stride=1)
+        return train(cfg, tmp_path / name / "run", batch_solver=ToySolver(task), solver_name="toy")
+
+    result = run("a")
+    budget = [r for r in result.dataset.records() if r.sampler != "pretrain"]
+    assert len(budget) == 18
+    visited = [r for r in budget if r.sampler == "closed-loop-visited"]
+    planned = [r for r in budget if r.sampler == "closed-loop"]
+    assert len(visited) == len(planned) == 6  # two loop rounds of 6 tails, half each
+    h = task.control_period
+    for r in visited:
+        steps = (task.tau_nominal - r.tau) / h
+        assert 0 < r.tau <= task.tau_nominal and abs(steps - round(steps)) < 1e-9
+    log = json.loads((tmp_path / "a" / "run" / "metrics.json").read_text())["sampler_log"]
+    assert [e.get("visited_tails") for e in log[1:]] == [3, 3]
+    again = run("b")
+    assert [(r.sampler, r.x_init.tolist(), r.tau) for r in again.dataset.records()] == [
+        (r.sampler, r.x_init.tolist(), r.tau) for r in result.dataset.records()
+    ]
+
+
+def test_collect_queries_records_the_visited_states_in_order():
+    task = make_task("acrobot")
+    mpc = LimitedLookaheadMPC(task, _net(task), 2, trust_region="none", jit=False)
+    starts = task.sample_x0(np.random.default_rng(3), 1)
+    q = collect_queries(task, mpc, starts, record_visited=True)
+    assert q.visited_x is not None and q.visited_tau is not None and q.visited_failed is not None
+    assert q.visited_x.shape == (50, task.nx)
+    np.testing.assert_allclose(q.visited_x[0], starts[0])
+    np.testing.assert_allclose(q.visited_tau, task.tau_nominal - 0.1 * np.arange(50), atol=1e-12)
+    assert bool(q.visited_failed.all()) == (q.successes == 0)
+    with pytest.raises(ValueError, match="fixed-step"):
+        collect_queries(make_task("glider"), mpc, starts, record_visited=True)
+
+
+def test_select_members_scores_every_subset_on_training_starts_and_keeps_the_best(monkeypatch):
+    """Every subset of the candidates flies the same seeded training starts; the best wins, the first of ties."""
+    import seagul_control.evaluation as evaluation
+    from seagul_learn.closed_loop import select_members
+    from seagul_learn.value_network import ValueEnsemble
+
+    task = make_task("acrobot")
+    cands = ValueEnsemble(4, (8,), 4, 0.0, task_name="acrobot", seed=0)
+    rng = np.random.default_rng(0)
+    for net in cands.networks:
+        net.set_normalization(task.sample_x0(rng, 32), rng.uniform(0, 5, 32), rng.uniform(0, 30, 32))
+    seen: list[tuple[float, tuple[float, ...]]] = []
+    real = evaluation.run_policy_episode
+
+    def fake(task_, policy, x0, **kw):
+        # success iff member 3's weights are in the MPC's ensemble (identified by its first output weight)
+        episode, infos = real(task_, policy, x0, **kw)
+        members = policy._vf_theta
+        mark = float(cands.members[3].casadi_parameters()[-3])
+        seen.append((float(x0[0]), tuple(np.round(x0, 12))))
+        episode.success = bool(np.any(np.isclose(members, mark)))
+        return episode, infos
+
+    monkeypatch.setattr(evaluation, "run_policy_episode", fake)
+    sel = select_members(task, cands, 2, 2, seed=5, jit=False)
+    assert set(sel.scores) == {(0, 1), (0, 2), (0, 3), (1, 2), (1, 3), (2, 3)}
+    assert sel.members == (0, 3) and sel.success == 1.0 and sel.episodes == 2  # the first of the three ties
+    assert {s for s, v in sel.scores.items() if v == 1.0} == {(0, 3), (1, 3), (2, 3)}
+    starts = {x for _, x in seen}
+    assert len(starts) == 2  # every subset flew the same two starts
+    assert sel.as_dict()["scores"]["0,3"] == 1.0
+    with pytest.raises(ValueError, match="size"):
+        select_members(task, cands, 5, 2, seed=5, jit=False)
+
+
+def test_refit_candidates_deploys_the_selected_members(tmp_path):
+    """``refit_candidates``: the final refit fits that many members, the selection's subset becomes network.pt, the
+    candidates and the scores are kept."""
+    from seagul_learn.value_network import ValueEnsemble
+
+    task = make_task("acrobot")
+    with pytest.raises(ValueError, match="refit_candidates"):
+        _cl_config(tmp_path, refit_steps=20, refit_ensemble=2, refit_candidates=2)
+    cfg = _cl_config(
+        tmp_path,
+        refit_steps=20,
+        refit_ensemble=2,
+        refit_candidates=3,
+        select_episodes=1,
+        select_jit=False,
+        budget=6,
+        cl_uniform_solves=6,
+    )
+    result = train(cfg, tmp_path / "run", batch_solver=ToySolver(task), solver_name="toy")
+    run = tmp_path / "run"
+    info = json.loads((run / "network_selection.json").read_text())
+    assert len(info["scores"]) == 3 and info["candidates"] == 3 and len(info["members"]) == 2
+    cands = ValueNetwork.load(run / "network_candidates.pt")
+    deployed = ValueNetwork.load(run / "network.pt")
+    assert isinstance(cands, ValueEnsemble) and isinstance(deployed, ValueEnsemble)
+    x, tau = task.sample_x0(np.random.default_rng(0), 3), np.full(3, 4.0)
+    for k, i in enumerate(info["members"]):
+        np.testing.assert_allclose(deployed.members[k].predict(x, tau), cands.members[i].predict(x, tau))
+    np.testing.assert_allclose(result.network.predict(x, tau), deployed.predict(x, tau))

@@ -110,3 +110,21 @@ def test_training_an_ensemble_trains_every_member(tmp_path):
     # resume of a finished run gives the same ensemble
     again = train(cfg, tmp_path / "run", resume=True, batch_solver=ToySolver(task), solver_name="toy")
     np.testing.assert_array_equal(again.network.casadi_parameters(), result.network.casadi_parameters())
+
+
+def test_subset_copies_the_chosen_members_in_order():
+    from seagul_learn.value_network import ValueEnsemble
+
+    ens = ValueEnsemble(4, (8,), 4, 0.5, task_name="acrobot", seed=3)
+    rng = np.random.default_rng(0)
+    x, tau = rng.normal(size=(5, 4)), rng.uniform(0, 5, 5)
+    sub = ens.subset([2, 0])
+    assert len(sub.members) == 2 and sub.pessimism == 0.5 and sub.task_name == "acrobot"
+    np.testing.assert_allclose(sub.members[0].predict(x, tau), ens.members[2].predict(x, tau))
+    np.testing.assert_allclose(sub.members[1].predict(x, tau), ens.members[0].predict(x, tau))
+    assert ens.subset([1, 3], pessimism=0.0).pessimism == 0.0
+    sub.members[0].out_mean.add_(1.0)  # a copy: the candidates are untouched
+    assert not np.allclose(sub.members[0].predict(x, tau), ens.members[2].predict(x, tau))
+    for bad in ([1], [1, 1], [0, 4]):
+        with pytest.raises(ValueError, match="subset"):
+            ens.subset(bad)

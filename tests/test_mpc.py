@@ -501,7 +501,7 @@ def test_a_value_function_with_one_form_is_used_in_it_and_a_bad_form_is_refused(
     net = ValueNetwork(4, (8,), task_name="acrobot", seed=0)
     assert _value_function_form(net, "matrix").is_a("MXFunction")
     assert _value_function_form(net, "scalar").is_a("SXFunction")
-    with pytest.raises(ValueError, match="form must be 'scalar' or 'matrix'"):
+    with pytest.raises(ValueError, match="form must be 'scalar', 'matrix'"):
         net.casadi_function(form="dense")
 
 

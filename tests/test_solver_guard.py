@@ -101,7 +101,7 @@ def test_forked_solver_raises_timeout_and_reports_solver_errors():
 
 def test_the_mpc_falls_back_when_a_step_hits_the_limit():
     task = make_task("acrobot")
-    mpc = LimitedLookaheadMPC(task, None, horizon=5, jit=False, max_solve_time=0.5)
+    mpc = LimitedLookaheadMPC(task, None, horizon=5, jit=False, max_solve_time=0.5, solver="fatrop")
     _, info0 = mpc.act(X, 5.0)
     assert info0.source == "solver"
     problem, _ = mpc._select(4.9)

@@ -92,6 +92,7 @@ def train_options() -> dict[str, Option]:
         "cl_tail_stride": Option(type=positive_int),
         "cl_uniform_fraction": Option(type=fraction),
         "cl_uniform_solves": Option(type=non_negative_int),
+        "cl_visited_fraction": Option(type=fraction),
         "value_cap": Option(type=non_negative_float),
         "snapshots": Option(type=budgets, metavar="N[,N...]"),
         "eval_every": Option(type=non_negative_int),
