@@ -49,6 +49,8 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=1, help="torch threads (1: a small network is fastest so)")
     parser.add_argument("--candidates", type=int, default=0, help="fit this many members, keep the --ensemble best")
     parser.add_argument("--select-episodes", type=int, default=100, help="closed-loop episodes per candidate subset")
+    parser.add_argument("--finalists", type=int, default=0, help="second stage: the best N subsets fly more starts")
+    parser.add_argument("--final-episodes", type=int, default=0, help="second-stage episodes per finalist")
     args = parser.parse_args()
     if args.cap <= 0 or args.grad_max <= 0 or args.steps < 1:
         parser.error("--cap and --grad-max must be > 0 and --steps >= 1")
@@ -70,6 +72,8 @@ def main() -> None:
         refit_ensemble=args.ensemble if args.candidates else stored.refit_ensemble,
         refit_candidates=args.candidates,
         select_episodes=args.select_episodes,
+        select_finalists=args.finalists,
+        select_final_episodes=args.final_episodes,
     )
     task = config.resolve_task()
     meta = json.loads((args.run / "dataset" / "dataset.json").read_text())["meta"]

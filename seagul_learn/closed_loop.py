@@ -51,7 +51,7 @@ part of the training checkpoint.
 from __future__ import annotations
 
 import math
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from typing import Any, Literal
 
 import numpy as np
@@ -69,6 +69,7 @@ _STREAM_SELECTION = 12
 _STREAM_EPISODE_ROBOTS = 14
 _STREAM_VISITED = 15
 _STREAM_SELECT_STARTS = 16
+_STREAM_SELECT_FINAL = 17
 
 
 @dataclass(frozen=True)
@@ -492,11 +493,15 @@ class MemberSelection:
     members: tuple[int, ...]
     """The chosen members' indices."""
     success: float
-    """Their MPC's success rate on the selection episodes."""
+    """Their MPC's success rate on every selection episode it flew."""
     scores: dict[tuple[int, ...], float]
-    """Success rate of every subset tried."""
+    """Success rate of every subset on the first ``episodes`` starts."""
     episodes: int
-    """Selection episodes per subset (training starts from X0, stream ``[seed, 16]``)."""
+    """First-stage episodes per subset (training starts from X0, stream ``[seed, 16]``)."""
+    finalists: dict[tuple[int, ...], float] = field(default_factory=dict)
+    """Success rate of the second stage's subsets over all their episodes (empty without one)."""
+    final_episodes: int = 0
+    """Further episodes each finalist flew (stream ``[seed, 17]``)."""
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict (JSON)."""
@@ -505,6 +510,8 @@ class MemberSelection:
             "success": self.success,
             "episodes": self.episodes,
             "scores": {",".join(map(str, k)): v for k, v in self.scores.items()},
+            "final_episodes": self.final_episodes,
+            "finalists": {",".join(map(str, k)): v for k, v in self.finalists.items()},
         }
 
 
@@ -515,17 +522,23 @@ def select_members(
     episodes: int,
     seed: int,
     *,
+    finalists: int = 0,
+    final_episodes: int = 0,
     horizon: int | None = None,
     trust_region: str = "none",
     jit: bool = True,
     progress: bool = False,
 ) -> MemberSelection:
-    """The ``size`` members of ``candidates`` whose ensemble the deployed MPC flies best: every subset drives a
-    ``LimitedLookaheadMPC(task, subset, horizon, trust_region=...)`` (one build, re-parameterised per subset) in
-    closed loop from the same ``episodes`` training starts drawn uniformly from X0 (stream ``[seed, 16]``; never an
-    evaluation grid or held-out set), and the subset with the most successes wins (ties: the first in
-    lexicographic order). Model selection on training episodes by the metric that matters, at no NLP solve:
-    refits of one buffer differ by tens of points of closed-loop success (docs/closed_loop.md, twelfth session).
+    """The ``size`` members of ``candidates`` whose ensemble the deployed MPC flies best.
+
+    Every subset drives a ``LimitedLookaheadMPC(task, subset, horizon, trust_region=...)`` (one build,
+    re-parameterised per subset) in closed loop from the same ``episodes`` training starts drawn uniformly from X0
+    (stream ``[seed, 16]``; never an evaluation grid or held-out set). With ``finalists``, the best ``finalists``
+    subsets then fly ``final_episodes`` more starts (stream ``[seed, 17]``) and are ranked on all their episodes:
+    the first stage's scores of the top subsets differ by less than their binomial noise (~2 points at 100
+    episodes). Ties go to the first subset in lexicographic order. Model selection on training episodes by the
+    metric that matters, at no NLP solve: refits of one buffer differ by tens of points of closed-loop success
+    (docs/closed_loop.md, twelfth session).
     """
     import itertools
 
@@ -535,17 +548,18 @@ def select_members(
     k = len(candidates.members)
     if not 2 <= int(size) <= k:
         raise ValueError(f"select_members: size must be in 2..{k} (the candidates' members), got {size}")
-    if int(episodes) < 1:
-        raise ValueError(f"select_members: episodes must be >= 1, got {episodes}")
+    if int(episodes) < 1 or int(finalists) < 0 or int(final_episodes) < 0:
+        raise ValueError(
+            f"select_members: episodes >= 1, finalists >= 0 and final_episodes >= 0 needed, got {episodes}, "
+            f"{finalists}, {final_episodes}"
+        )
     if candidates.n_params:
         raise ValueError("select_members: candidates over robots are not supported (select on the nominal model)")
-    starts = task.sample_x0(np.random.default_rng([int(seed), _STREAM_SELECT_STARTS]), int(episodes))
     subsets = list(itertools.combinations(range(k), int(size)))
     mpc: Any = None
-    scores: dict[tuple[int, ...], float] = {}
-    from tqdm import tqdm
 
-    for subset in tqdm(subsets, desc="member selection", unit="subset", disable=not progress):
+    def wins(subset: tuple[int, ...], starts: np.ndarray) -> int:
+        nonlocal mpc
         ensemble = candidates.subset(subset)
         if mpc is None:
             mpc = LimitedLookaheadMPC(
@@ -557,9 +571,23 @@ def select_members(
             )
         else:
             mpc.set_value_function(ensemble)
-        wins = sum(int(run_policy_episode(task, mpc, x0)[0].success) for x0 in starts)
-        scores[subset] = wins / float(episodes)
-    best = max(subsets, key=lambda s: scores[s])  # max keeps the first of equal scores
+        return sum(int(run_policy_episode(task, mpc, x0)[0].success) for x0 in starts)
+
+    from tqdm import tqdm
+
+    first = task.sample_x0(np.random.default_rng([int(seed), _STREAM_SELECT_STARTS]), int(episodes))
+    counts = {s: wins(s, first) for s in tqdm(subsets, desc="member selection", unit="subset", disable=not progress)}
+    scores = {s: c / float(episodes) for s, c in counts.items()}
+    ranked = sorted(subsets, key=lambda s: -counts[s])  # stable: ties keep lexicographic order
+    final: dict[tuple[int, ...], float] = {}
+    if finalists and final_episodes:
+        more = task.sample_x0(np.random.default_rng([int(seed), _STREAM_SELECT_FINAL]), int(final_episodes))
+        total = int(episodes) + int(final_episodes)
+        for s in ranked[: int(finalists)]:
+            final[s] = (counts[s] + wins(s, more)) / float(total)
+        best = max(ranked[: int(finalists)], key=lambda s: final[s])
+        return MemberSelection(best, final[best], scores, int(episodes), final, int(final_episodes))
+    best = ranked[0]
     return MemberSelection(best, scores[best], scores, int(episodes))
 
 

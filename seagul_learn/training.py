@@ -217,6 +217,11 @@ class TrainConfig:
     ``network_selection.json`` (0 = off)."""
     select_episodes: int = 100
     """Closed-loop episodes per candidate subset of ``refit_candidates``."""
+    select_finalists: int = 0
+    """Second stage of the ``refit_candidates`` selection: the best this many subsets fly ``select_final_episodes``
+    more starts and are ranked on all their episodes (0 = one stage)."""
+    select_final_episodes: int = 0
+    """Episodes of that second stage per finalist."""
     select_jit: bool = True
     """Compile the MPC of the ``refit_candidates`` selection (False: interpreted, for tests)."""
     snapshots: tuple[int, ...] = ()
@@ -307,8 +312,11 @@ class TrainConfig:
                 f"refit_candidates: C({self.refit_candidates}, {self.refit_ensemble}) subsets is too many to try "
                 "(at most 252)"
             )
-        if self.select_episodes < 1:
-            raise ValueError(f"select_episodes must be >= 1, got {self.select_episodes}")
+        if self.select_episodes < 1 or self.select_finalists < 0 or self.select_final_episodes < 0:
+            raise ValueError(
+                "select_episodes must be >= 1 and select_finalists, select_final_episodes >= 0, got "
+                f"{self.select_episodes}, {self.select_finalists}, {self.select_final_episodes}"
+            )
         if self.cl_collect_refit and not self.refit_steps:
             raise ValueError("cl_collect_refit needs refit_steps > 0 (the collecting network is a refit)")
         if self.cl_keep_best and (self.sampler != "closed-loop" or self.refit_steps):
@@ -959,6 +967,35 @@ def refit(
     return network
 
 
+#: TrainConfig fields that shape the final refit (the candidates of ``refit_candidates`` are reused only if equal).
+_REFIT_FIELDS = frozenset(
+    {
+        "task",
+        "seed",
+        "hidden",
+        "lr",
+        "batch_size",
+        "sobolev_weight",
+        "value_cap",
+        "grad_label_max",
+        "refit_steps",
+        "ensemble_pessimism",
+        "torch_threads",
+        "model_params",
+    }
+)
+
+
+def candidates_key(config: TrainConfig, buffer: TrainingArrays) -> dict[str, Any]:
+    """What the candidates' refit of ``refit_candidates`` depends on (stored beside them; JSON-ready)."""
+    key = {
+        "candidates": config.refit_candidates,
+        "knots": len(buffer),
+        "refit": {k: v for k, v in config.to_dict().items() if k in _REFIT_FIELDS},
+    }
+    return json.loads(json.dumps(key))
+
+
 def refit_and_select(
     config: TrainConfig, task: Task, buffer: TrainingArrays, trainer: _Trainer, out: Path
 ) -> ValueModel:
@@ -968,10 +1005,19 @@ def refit_and_select(
     ``network_selection.json``). Deterministic (the refit, the starts and the MPC are)."""
     from seagul_learn.closed_loop import select_members
 
-    candidates = refit(replace(config, ensemble=config.refit_candidates), task, buffer, trainer)
-    if not isinstance(candidates, ValueEnsemble):
-        raise TypeError("refit_candidates: the candidate refit must be an ensemble")
-    candidates.save(out / "network_candidates.pt")
+    # The candidates' refit is deterministic: a run interrupted during the selection reuses the stored one when it
+    # was made with the same settings from the same buffer.
+    key = candidates_key(config, buffer)
+    stored, stored_key = out / "network_candidates.pt", out / "network_candidates.json"
+    candidates: ValueModel | None = None
+    if stored.is_file() and stored_key.is_file() and json.loads(stored_key.read_text()) == key:
+        candidates = ValueNetwork.load(stored)
+    if not isinstance(candidates, ValueEnsemble) or len(candidates.members) != config.refit_candidates:
+        candidates = refit(replace(config, ensemble=config.refit_candidates), task, buffer, trainer)
+        if not isinstance(candidates, ValueEnsemble):
+            raise TypeError("refit_candidates: the candidate refit must be an ensemble")
+        candidates.save(stored)
+        atomic_write_text(stored_key, json.dumps(key, indent=1) + "\n")
     start = time.perf_counter()
     chosen = select_members(
         task,
@@ -979,6 +1025,8 @@ def refit_and_select(
         config.refit_ensemble,
         config.select_episodes,
         config.seed,
+        finalists=config.select_finalists,
+        final_episodes=config.select_final_episodes,
         horizon=config.cl_horizon or None,
         trust_region=config.cl_trust_region,
         jit=config.select_jit,

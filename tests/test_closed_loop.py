@@ -442,6 +442,12 @@ def test_select_members_scores_every_subset_on_training_starts_and_keeps_the_bes
     assert sel.as_dict()["scores"]["0,3"] == 1.0
     with pytest.raises(ValueError, match="size"):
         select_members(task, cands, 5, 2, seed=5, jit=False)
+    # a second stage: the two best subsets fly 3 more (other) starts, ranked on all 5 episodes
+    seen.clear()
+    two = select_members(task, cands, 2, 2, seed=5, finalists=2, final_episodes=3, jit=False)
+    assert set(two.finalists) == {(0, 3), (1, 3)} and two.final_episodes == 3
+    assert two.members == (0, 3) and two.success == 1.0
+    assert len({x for _, x in seen}) == 5  # 2 first-stage starts + 3 second-stage starts
 
 
 def test_refit_candidates_deploys_the_selected_members(tmp_path):
@@ -465,6 +471,16 @@ def test_refit_candidates_deploys_the_selected_members(tmp_path):
     result = train(cfg, tmp_path / "run", batch_solver=ToySolver(task), solver_name="toy")
     run = tmp_path / "run"
     info = json.loads((run / "network_selection.json").read_text())
+    # the candidates' refit is stored with what it depends on, and reused by a selection of the same run
+    from seagul_learn.dataset import training_arrays
+    from seagul_learn.training import _Trainer, make_network, refit_and_select
+
+    key = json.loads((run / "network_candidates.json").read_text())
+    assert key["candidates"] == 3 and key["refit"]["refit_steps"] == 20
+    buffer = training_arrays(result.dataset.records())
+    again = refit_and_select(cfg, task, buffer, _Trainer(cfg, make_network(cfg, task), None), run)
+    x0, t0 = task.sample_x0(np.random.default_rng(1), 2), np.full(2, 3.0)
+    np.testing.assert_allclose(again.predict(x0, t0), result.network.predict(x0, t0))
     assert len(info["scores"]) == 3 and info["candidates"] == 3 and len(info["members"]) == 2
     cands = ValueNetwork.load(run / "network_candidates.pt")
     deployed = ValueNetwork.load(run / "network.pt")

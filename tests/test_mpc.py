@@ -467,7 +467,7 @@ def test_compiled_matrix_form_value_function_is_the_interpreted_one(tmp_path, en
         return vf
 
     a, b = make(1), make(2)
-    options = {"trust_region": "lqr", "goal_blend": 0.5, "max_iter": 50}
+    options = {"trust_region": "lqr", "goal_blend": 0.5, "max_iter": 50, "solver": "fatrop"}
     compiled = LimitedLookaheadMPC(task, a, 5, jit=True, jit_cache_dir=tmp_path, **options)
     interpreted = LimitedLookaheadMPC(task, a, 5, jit=False, **options)
     assert compiled._matrix_form() and not interpreted._matrix_form()

@@ -173,3 +173,30 @@ def test_buffered_function_binds_numpy_arrays():
         BufferedFunction(ca.Function("s", [x], [ca.SX(ca.Sparsity.diag(2))]))
     with pytest.raises(ValueError, match="finite input bounds"):
         ShootingSolver(fn, fn, np.array([-np.inf]), np.array([1.0]))
+
+
+def test_compiled_shooting_mpc_is_the_interpreted_one(tmp_path):
+    """jit=True generates the condensed functions (the network through its Taylor forms) into one cached library:
+    the same actions, iterations and plans as the interpreted (expanded) condensed MPC."""
+    pytest.importorskip("torch")
+    from seagul_control.mpc import find_c_compiler
+    from seagul_learn.value_network import ValueEnsemble
+
+    if find_c_compiler() is None:
+        pytest.skip("no C compiler")
+    task = make_task("acrobot")
+    rng = np.random.default_rng(7)
+    vf = ValueEnsemble(4, (8,), 2, 0.5, task_name="acrobot", seed=3)
+    for net in vf.networks:
+        net.set_normalization(task.sample_x0(rng, 64), rng.uniform(0, 5, 64), rng.uniform(0, 3, 64))
+    options = {"trust_region": "lqr", "goal_blend": 1.0, "solver": "shooting"}
+    compiled = LimitedLookaheadMPC(task, vf, 5, jit=True, jit_cache_dir=tmp_path, jit_flags=("-O0",), **options)
+    interpreted = LimitedLookaheadMPC(task, vf, 5, jit=False, **options)
+    assert compiled._lookahead.trans.codegen_library is not None
+    x, tau = task.goal + np.array([0.2, -0.1, 0.0, 0.3]), 5.0
+    for _ in range(3):
+        u_c, info_c = compiled.act(x, tau)
+        u_i, info_i = interpreted.act(x, tau)
+        assert (info_c.status, info_c.iterations) == (info_i.status, info_i.iterations)
+        np.testing.assert_allclose(u_c, u_i, rtol=1e-8, atol=1e-8)
+        x, tau = x + 0.02 * rng.standard_normal(4), tau - 0.1
