@@ -752,13 +752,11 @@ class LimitedLookaheadMPC(_MPCBase):
         """``"shooting"`` for a short fixed-step lookahead of a task with input bounds only (the acrobot: the same
         NLP ~10x faster per step, docs/mpc.md), else as :meth:`_MPCBase.default_solver` (fatrop; IPOPT for free
         time)."""
-        task = self.task
-        condensable = (
-            not free_time
-            and self.horizon <= self.SHOOTING_MAX_HORIZON
-            and not np.any(np.isfinite(task.x_low) | np.isfinite(task.x_high))
-            and bool(np.all(np.isfinite(task.u_low)) and np.all(np.isfinite(task.u_high)))
-        )
+        from seagul_control.shooting import condensation_problems
+
+        # The lookahead never imposes the terminal box (final_box=False) and has hard bounds.
+        problems = condensation_problems(self.task, free_time=free_time, final_box=False, soft_bounds=False)
+        condensable = not problems and self.horizon <= self.SHOOTING_MAX_HORIZON
         return "shooting" if condensable else super().default_solver(free_time)
 
     # ------------------------------------------------------------------ value function

@@ -50,6 +50,25 @@ SHOOTING_DEFAULTS: dict[str, float] = {
 }
 
 
+def condensation_problems(task: Any, *, free_time: bool, final_box: bool, soft_bounds: bool) -> list[str]:
+    """Why a transcription of ``task`` cannot be solved by :class:`ShootingSolver` (empty: it can): it needs fixed
+    steps, finite input bounds and no state bounds on knots ``1..n`` (path bounds, the terminal box with
+    ``final_box``, soft bounds)."""
+    problems = []
+    if free_time:
+        problems.append("free steps")
+    if soft_bounds:
+        problems.append("soft bounds")
+    bounded = np.isfinite(task.x_low) | np.isfinite(task.x_high)
+    if final_box:
+        bounded = bounded | np.isfinite(task.x_final_low) | np.isfinite(task.x_final_high)
+    if np.any(bounded):
+        problems.append("finite state bounds on knots 1..n (path bounds or the terminal box)")
+    if not (np.all(np.isfinite(task.u_low)) and np.all(np.isfinite(task.u_high))):
+        problems.append("infinite input bounds")
+    return problems
+
+
 class BufferedFunction:
     """A CasADi Function evaluated through its numeric buffer (``Function.buffer``): inputs and outputs are numpy
     arrays bound once, so a call costs the compiled code plus ~1 us, instead of converting every argument (the
@@ -96,6 +115,8 @@ class ShootingResult:
     iterations: int
     projected_gradient: float
     """``|U - P(U - dJ/dU)|_inf`` at the returned inputs."""
+    gradient: np.ndarray
+    """``dJ/dU`` at the returned inputs (the active bounds' multipliers are ``-gradient`` there)."""
 
 
 class ShootingSolver:
@@ -154,16 +175,16 @@ class ShootingSolver:
         j, g, h = self._fgh(u)
         for it in range(self.max_iter + 1):
             if not (np.isfinite(j) and np.all(np.isfinite(g))):
-                return ShootingResult(False, "non-finite objective or gradient", j, u, it, pg_norm)
+                return ShootingResult(False, "non-finite objective or gradient", j, u, it, pg_norm, g)
             pg_norm = float(np.max(np.abs(u - np.clip(u - g, lo, hi)))) if u.size else 0.0
             if pg_norm <= self.tol:
-                return ShootingResult(True, "Success", j, u, it, pg_norm)
+                return ShootingResult(True, "Success", j, u, it, pg_norm, g)
             if it == self.max_iter:
                 break
             if max_time is not None and time.perf_counter() - start > max_time:
-                return ShootingResult(False, f"timeout: {max_time:g} s", j, u, it, pg_norm)
+                return ShootingResult(False, f"timeout: {max_time:g} s", j, u, it, pg_norm, g)
             if not np.all(np.isfinite(h)):
-                return ShootingResult(False, "non-finite Hessian", j, u, it, pg_norm)
+                return ShootingResult(False, "non-finite Hessian", j, u, it, pg_norm, g)
             d = self._direction(u, g, h, lo, hi, pg_norm)
             # The full step is evaluated with its derivatives (usually accepted: then they serve the next
             # iteration); shorter steps with J alone.
@@ -184,18 +205,13 @@ class ShootingSolver:
             if not accepted:
                 # No decrease along the arc: stationary to the precision J can be evaluated at.
                 ok = pg_norm <= 1e3 * self.tol
-                return ShootingResult(ok, "Success" if ok else "line search failed", j, u, it, pg_norm)
-        return ShootingResult(False, "Maximum_Iterations_Exceeded", j, u, self.max_iter, pg_norm)
+                return ShootingResult(ok, "Success" if ok else "line search failed", j, u, it, pg_norm, g)
+        return ShootingResult(False, "Maximum_Iterations_Exceeded", j, u, self.max_iter, pg_norm, g)
 
     def _fgh(self, u: np.ndarray) -> tuple[float, np.ndarray, np.ndarray]:
         """``J``, ``dJ/dU`` and ``d2J/dU2`` at ``u`` (copies; the parameters as last set)."""
         out = self.fgh(u)
         return float(out[0].ravel()[0]), out[1].ravel().copy(), out[2].T.copy()
-
-    def gradient(self, u: np.ndarray, p: np.ndarray) -> np.ndarray:
-        """``dJ/dU`` at ``(u, p)``."""
-        self.fgh.set_input(1, p)
-        return self._fgh(np.asarray(u, dtype=float))[1]
 
     def _direction(
         self, u: np.ndarray, g: np.ndarray, h: np.ndarray, lo: np.ndarray, hi: np.ndarray, pg_norm: float

@@ -600,19 +600,12 @@ class Transcription:
     ) -> None:
         """The condensed problem ``J(U; p)`` of the same NLP and its :class:`~seagul_control.shooting.ShootingSolver`
         (``solver="shooting"``; module docstring of :mod:`seagul_control.shooting`)."""
-        from seagul_control.shooting import BufferedFunction, ShootingSolver
+        from seagul_control.shooting import BufferedFunction, ShootingSolver, condensation_problems
 
         task, n = self.task, self.horizon
-        bounded = np.isfinite(self._knot_lo) | np.isfinite(self._knot_hi)
-        problems = []
-        if self.free_time:
-            problems.append("free steps")
-        if self.soft_bounds_weight is not None:
-            problems.append("soft bounds")
-        if np.any(bounded):
-            problems.append(f"finite state bounds on knots 1..{n} (path bounds or the terminal box)")
-        if not (np.all(np.isfinite(task.u_low)) and np.all(np.isfinite(task.u_high))):
-            problems.append("infinite input bounds")
+        problems = condensation_problems(
+            task, free_time=self.free_time, final_box=self.final_box, soft_bounds=self.soft_bounds_weight is not None
+        )
         if problems:
             raise ValueError(
                 f"{task.name}: solver 'shooting' needs fixed steps and input bounds only; this transcription has "
@@ -1001,9 +994,8 @@ class Transcription:
             lam_g[rows] = -lam_states[k + 1]
         lam_x = np.zeros(self._lbw.size)
         if res.success:
-            grad = self._shooting.gradient(res.controls, p)
             at_bound = (res.controls <= self._lbw[u_idx] + 1e-9) | (res.controls >= self._ubw[u_idx] - 1e-9)
-            lam_x[u_idx] = np.where(at_bound, -grad, 0.0)
+            lam_x[u_idx] = np.where(at_bound, -res.gradient, 0.0)
         ok = res.success and bool(np.all(np.isfinite(w)))
         return TranscriptionSolution(
             success=ok,

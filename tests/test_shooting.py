@@ -60,7 +60,6 @@ def test_condensed_gradient_and_hessian_match_finite_differences():
     p = np.concatenate([x, [2.5]])
     u = np.array([1.0, -2.0, 0.5, 3.0, -1.0])
     solver.f.set_input(1, p)
-    j, g, h = solver.gradient(u, p), None, None
     solver.fgh.set_input(1, p)
     j, g, h = solver._fgh(u)
 
