@@ -20,7 +20,10 @@ Bertsekas (1982, "Projected Newton methods for optimization problems with simple
    ``J`` is not convex, the exact Newton step where it is); active variables take a scaled gradient step;
 3. an Armijo search along the projection arc ``P(U + alpha d)`` on ``J`` alone.
 
-It stops when the projected gradient ``|U - P(U - g)|_inf`` is below ``tol``. Converged inputs satisfy the same
+It stops when the projected gradient ``|U - P(U - g)|_inf`` is below ``tol``. ``J`` is not convex (a learned
+terminal cost has local minima the warm start may sit in), so with the option ``starts = m`` the solver also
+descends from ``m`` constant inputs spread over the bounds and keeps the lowest converged ``J`` (the given start
+wins ties). Converged inputs satisfy the same
 first-order conditions as the lifted NLP's; the states, the defects' multipliers (the costates
 ``dJ/dx_{k+1}`` with the inputs fixed, equal to the lifted NLP's multipliers at a KKT point) and the sensitivity
 ``dV/dp`` (envelope theorem: the bounds do not depend on ``p``) come from one more compiled call.
@@ -47,6 +50,7 @@ SHOOTING_DEFAULTS: dict[str, float] = {
     "armijo": 1e-4,
     "max_backtracks": 30,
     "eps_active": 1e-3,
+    "starts": 0,
 }
 
 
@@ -117,6 +121,8 @@ class ShootingResult:
     """``|U - P(U - dJ/dU)|_inf`` at the returned inputs."""
     gradient: np.ndarray
     """``dJ/dU`` at the returned inputs (the active bounds' multipliers are ``-gradient`` there)."""
+    start: int = 0
+    """Which start the result descended from: 0 the given one, ``i >= 1`` the ``i``-th extra start (``starts``)."""
 
 
 class ShootingSolver:
@@ -142,6 +148,9 @@ class ShootingSolver:
         self.armijo = float(opts["armijo"])
         self.max_backtracks = int(opts["max_backtracks"])
         self.eps_active = float(opts["eps_active"])
+        self.starts = int(opts["starts"])
+        if self.starts < 0 or self.starts != opts["starts"]:
+            raise ValueError(f"shooting solver option starts: a whole number >= 0 needed, got {opts['starts']!r}")
         if self.max_iter < 0 or not self.tol > 0 or not 0 < self.armijo < 0.5 or self.max_backtracks < 1:
             raise ValueError(
                 "shooting solver options: max_iter >= 0, tol > 0, 0 < armijo < 0.5 and max_backtracks >= 1 needed, "
@@ -162,12 +171,34 @@ class ShootingSolver:
         hi: np.ndarray | None = None,
         max_time: float | None = None,
     ) -> ShootingResult:
-        """Minimise ``J(., p)`` from ``u0`` (projected onto the bounds) within ``lo``/``hi`` (default: the built)."""
+        """Minimise ``J(., p)`` from ``u0`` (projected onto the bounds) within ``lo``/``hi`` (default: the built).
+
+        With ``starts = m > 0`` it also descends from ``m`` constant inputs spread evenly over the bounds (``m = 1``:
+        their midpoint; ``m >= 2``: both bounds and ``m - 2`` levels between them) and returns the converged result
+        of lowest ``J``; ``u0``'s is kept unless another is lower by more than ``tol * (1 + |J|)``."""
         lo = self.lo if lo is None else np.asarray(lo, dtype=float)
         hi = self.hi if hi is None else np.asarray(hi, dtype=float)
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
             raise ValueError("the shooting solver needs finite input bounds (set both lbu and ubu)")
         start = time.perf_counter()
+        best = self._descend(u0, p, lo, hi, max_time, start)
+        if self.starts == 0:
+            return best
+        levels = [0.5] if self.starts == 1 else np.linspace(0.0, 1.0, self.starts)
+        iterations = best.iterations
+        for i, level in enumerate(levels, start=1):
+            other = self._descend(lo + level * (hi - lo), p, lo, hi, max_time, start)
+            iterations += other.iterations
+            margin = self.tol * (1.0 + abs(best.objective))
+            if other.success and (not best.success or other.objective < best.objective - margin):
+                best, best.start = other, i
+        best.iterations = iterations  # the solve's total over its starts
+        return best
+
+    def _descend(
+        self, u0: np.ndarray, p: np.ndarray, lo: np.ndarray, hi: np.ndarray, max_time: float | None, start: float
+    ) -> ShootingResult:
+        """One projected Newton descent from ``u0`` (``start``: the solve's start time, for ``max_time``)."""
         u = np.clip(np.where(np.isfinite(u0), u0, 0.0), lo, hi)
         pg_norm = float("inf")
         self.f.set_input(1, p)

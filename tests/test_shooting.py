@@ -199,3 +199,47 @@ def test_compiled_shooting_mpc_is_the_interpreted_one(tmp_path):
         assert (info_c.status, info_c.iterations) == (info_i.status, info_i.iterations)
         np.testing.assert_allclose(u_c, u_i, rtol=1e-8, atol=1e-8)
         x, tau = x + 0.02 * rng.standard_normal(4), tau - 0.1
+
+
+def _double_well() -> tuple[ca.Function, ca.Function]:
+    """``J(U) = sum((u^2 - 1)^2 + 0.3 u)``: in each coordinate a local minimum near +1 and the global one near -1."""
+    u, p = ca.SX.sym("u", 2), ca.SX.sym("p", 1)
+    j = ca.sum1((u**2 - 1) ** 2 + 0.3 * u) + 0 * p
+    g = ca.gradient(j, u)
+    return ca.Function("f", [u, p], [j]), ca.Function("fgh", [u, p], [j, g, ca.densify(ca.hessian(j, u)[0])])
+
+
+def test_extra_starts_find_the_lower_minimum_and_keep_the_given_one_on_ties():
+    f, fgh = _double_well()
+    lo, hi = np.full(2, -2.0), np.full(2, 2.0)
+    single = ShootingSolver(f, fgh, lo, hi).solve(np.array([1.0, 1.0]), np.zeros(1))
+    assert single.success and np.all(single.controls > 0.5) and single.start == 0
+    multi = ShootingSolver(f, fgh, lo, hi, starts=2)
+    res = multi.solve(np.array([1.0, 1.0]), np.zeros(1))
+    assert res.success and np.all(res.controls < -0.5) and res.start == 1  # descended from the lower bound
+    assert res.objective < single.objective - 1.0
+    assert res.iterations > single.iterations  # the total over the starts
+    # Started in the global minimum's basin, the given start's result is kept (the lower bound reaches the same).
+    again = multi.solve(np.array([-1.0, -1.0]), np.zeros(1))
+    assert again.start == 0 and again.objective == pytest.approx(res.objective, abs=1e-9)
+    # One extra start is the midpoint of the bounds: from 0, a descent reaches the global basin too.
+    mid = ShootingSolver(f, fgh, lo, hi, starts=1).solve(np.array([1.0, 1.0]), np.zeros(1))
+    assert mid.start == 1 and mid.objective == pytest.approx(res.objective, abs=1e-9)
+    for bad in (-1, 1.5):
+        with pytest.raises(ValueError, match="starts"):
+            ShootingSolver(f, fgh, lo, hi, starts=bad)
+
+
+def test_mpc_with_extra_starts_plans_no_worse_than_without():
+    """``solver_options={"shooting.starts": 2}``: every step's plan costs at most the single-start plan's."""
+    task = make_task("acrobot")
+    plain = LimitedLookaheadMPC(task, None, 5, solver="shooting", warm_start=False, jit=False)
+    multi = LimitedLookaheadMPC(
+        task, None, 5, solver="shooting", warm_start=False, jit=False, solver_options={"shooting.starts": 2}
+    )
+    for x in _starts(task, 8, seed=3):
+        _, a = plain.act(x, 3.0)
+        _, b = multi.act(x, 3.0)
+        assert a.success and b.success
+        assert b.objective <= a.objective + 1e-6 * (1 + abs(a.objective))
+    assert b.iterations > a.iterations
