@@ -95,6 +95,7 @@ from seagul_envs.tasks.base import Task
 
 TrustRegion = Literal["box", "lqr", "none"]
 SolverName = Literal["fatrop", "ipopt", "shooting"]
+Multistart = Literal["never", "rise", "always"]
 
 #: Tolerance (s) below which a remaining time counts as zero (observations are float32).
 _TIME_EPS = 1e-4
@@ -129,6 +130,8 @@ class MPCStepInfo:
     terminal_theta: tuple[float, ...] | None = None
     """The robot the plan (and its value query) was made for, when :attr:`terminal_state` is set and the MPC plans
     over robots (``model_params``), else None."""
+    extra_starts: int = 0
+    """Extra starts the condensed solver descended from in this step (``multistart``; 0: the warm start alone)."""
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict (for JSON)."""
@@ -175,6 +178,7 @@ class _Problem:
         lam_g: np.ndarray | None = None,
         lam_x: np.ndarray | None = None,
         model_params: np.ndarray | None = None,
+        starts: int = 0,
     ) -> TranscriptionSolution:
         trans = self.trans
         if self.pin_first_step:
@@ -191,7 +195,8 @@ class _Problem:
                     trans.set(k, "lbh", lo_k)
                     trans.set(k, "ubh", hi_k)
         phys = model_params if trans.model_params else None
-        return trans.solve(x, tau, theta, guess=guess, lam_g=lam_g, lam_x=lam_x, model_params=phys)
+        extra = {"starts": starts} if starts else {}
+        return trans.solve(x, tau, theta, guess=guess, lam_g=lam_g, lam_x=lam_x, model_params=phys, **extra)
 
     def cold_guess(self, x: np.ndarray, tau: float, dt: float, kind: str) -> np.ndarray:
         """A first guess: a zero-input rollout (``"rollout"``) or the transcription's straight line (``"line"``)."""
@@ -232,6 +237,8 @@ class _Plan:
     steps: np.ndarray
     lam_x: np.ndarray
     lam_g: np.ndarray
+    objective: float = float("nan")
+    """The plan's optimal objective (``multistart="rise"`` compares the next step's with it)."""
     age: int = 0
     """Control steps taken since the solve."""
 
@@ -309,6 +316,10 @@ class _MPCBase:
         self.model_params = False
         """True when the solvers take the robot's physical parameters (``set_robot``)."""
         self._robot: np.ndarray | None = None
+        self.multistart: Multistart = "never"
+        """When the condensed solver also descends from extra starts (:class:`LimitedLookaheadMPC`)."""
+        self.multistart_starts = 0
+        """How many extra starts then."""
 
     # ------------------------------------------------------------------ protocol
     def predict(
@@ -361,9 +372,29 @@ class _MPCBase:
             guess, lam_g, lam_x = _shift_guess(plan, problem, x, self.dt, tau)
         else:
             guess = problem.cold_guess(x, tau, self.dt, self.cold_guess)
+        mode = self.multistart if problem.trans.condensed else "never"
+        # "rise": a fresh plan of the same problem to compare with, else (a cold start, a phase switch, a failed
+        # last step) the extra starts at once.
+        fresh = plan is not None and plan.age == 1 and plan.problem is problem and np.isfinite(plan.objective)
+        extra = self.multistart_starts if mode == "always" or (mode == "rise" and not fresh) else 0
         try:
-            sol = problem.solve(x, tau, theta, self.dt, guess, lam_g, lam_x, self._robot)
+            sol = problem.solve(x, tau, theta, self.dt, guess, lam_g, lam_x, self._robot, starts=extra)
             ok = sol.success and bool(np.all(np.isfinite(sol.controls[0])))
+            if ok and mode == "rise" and not extra and plan is not None:
+                previous = plan.objective
+                if sol.objective > previous + 1e-6 * (1.0 + abs(previous)):
+                    # The warm-started plan costs more than the last one promised: its basin has worsened, so look
+                    # for a lower one (the warm start descends again; the lowest converged plan is kept).
+                    extra = self.multistart_starts
+                    again = problem.solve(x, tau, theta, self.dt, guess, lam_g, lam_x, self._robot, starts=extra)
+                    again_ok = again.success and bool(np.all(np.isfinite(again.controls[0])))
+                    if again_ok and again.objective <= sol.objective:
+                        again.solve_time += sol.solve_time
+                        again.iterations += sol.iterations
+                        sol = again
+                    else:
+                        sol.solve_time += again.solve_time
+                        sol.iterations += again.iterations
             status, iters, solve_time, objective = sol.status, sol.iterations, sol.solve_time, sol.objective
         except Exception as exc:  # a solver exception must not stop a closed loop
             sol, ok = None, False
@@ -378,7 +409,9 @@ class _MPCBase:
                 if self._robot is not None or getattr(self, "model_params", False):
                     robot = self.task.theta if self._robot is None else self._robot
                     terminal_theta = tuple(float(v) for v in robot)
-            self._plans[env_index] = _Plan(problem, sol.states, sol.controls, sol.steps, sol.lam_x, sol.lam_g)
+            self._plans[env_index] = _Plan(
+                problem, sol.states, sol.controls, sol.steps, sol.lam_x, sol.lam_g, float(sol.objective)
+            )
         else:
             objective = float("nan")
             u, source = self._fallback(x, tau, env_index)
@@ -395,6 +428,7 @@ class _MPCBase:
             terminal_state=terminal_state,
             terminal_tau=terminal_tau,
             terminal_theta=terminal_theta,
+            extra_starts=int(extra),
         )
         self.stats.append(info)
         return u, info
@@ -582,6 +616,14 @@ class LimitedLookaheadMPC(_MPCBase):
             env's last transition updates a :class:`~seagul_control.estimation.ParameterEstimator` of that env's
             episode, and the MPC plans for its estimate (:meth:`set_robot`). True for the estimator's defaults, or
             a dict of its options (``window``, ``prior``, ``iterations``, ``min_transitions``).
+        multistart: when the condensed solver also descends from ``multistart_starts`` constant inputs spread over
+            the bounds and keeps the lowest plan (a learned terminal cost makes the lookahead non-convex, and the
+            warm start stays in its basin): ``"rise"`` (default with ``solver="shooting"``) at a cold start and
+            whenever the warm-started plan costs more than the last step's plan (the warm basin has worsened),
+            ``"always"`` every step, ``"never"`` (the only choice, and default, of the other solvers). Measured on
+            the acrobot's shipped network (docs/mpc.md): grid success 94.5 % -> 98.5 % with ``"rise"`` (extra starts
+            on ~5 % of steps) or ``"always"`` (~10x the step time).
+        multistart_starts: how many extra starts (2: both bounds).
 
     A value function over robots (``n_params > 0``, e.g. a network trained with ``TrainConfig.model_params``) is
     evaluated at the robot the MPC plans for: the task's own parameters, or those of :meth:`set_robot`.
@@ -620,6 +662,8 @@ class LimitedLookaheadMPC(_MPCBase):
         final_soft_weight: float | None = None,
         model_params: bool = False,
         estimate_robot: bool | dict[str, Any] = False,
+        multistart: Multistart | None = None,
+        multistart_starts: int = 2,
     ) -> None:
         if model_params and task.parameters is None:
             raise ValueError(f"{self.name}: model_params=True needs a task that declares which parameters vary")
@@ -665,6 +709,16 @@ class LimitedLookaheadMPC(_MPCBase):
         self._configure_solver(
             solver, steps == "free", jit, jit_cache_dir, jit_flags, max_iter, tol, solver_options, max_solve_time
         )
+        if multistart not in (None, "never", "rise", "always"):
+            raise ValueError(f"{self.name}: multistart must be 'never', 'rise', 'always' or None, got {multistart!r}")
+        if multistart not in (None, "never") and self.solver != "shooting":
+            raise ValueError(f"{self.name}: multistart={multistart!r} needs solver='shooting', not {self.solver!r}")
+        if isinstance(multistart_starts, bool) or not isinstance(multistart_starts, (int, np.integer)):
+            raise ValueError(f"{self.name}: multistart_starts must be an integer >= 1, got {multistart_starts!r}")
+        if multistart_starts < 1:
+            raise ValueError(f"{self.name}: multistart_starts must be an integer >= 1, got {multistart_starts!r}")
+        self.multistart = ("rise" if self.solver == "shooting" else "never") if multistart is None else multistart
+        self.multistart_starts = int(multistart_starts)
 
         self.free_time = steps == "free"
         self._vf_fn: ca.Function | None = None

@@ -170,21 +170,26 @@ class ShootingSolver:
         lo: np.ndarray | None = None,
         hi: np.ndarray | None = None,
         max_time: float | None = None,
+        starts: int | None = None,
     ) -> ShootingResult:
         """Minimise ``J(., p)`` from ``u0`` (projected onto the bounds) within ``lo``/``hi`` (default: the built).
 
-        With ``starts = m > 0`` it also descends from ``m`` constant inputs spread evenly over the bounds (``m = 1``:
-        their midpoint; ``m >= 2``: both bounds and ``m - 2`` levels between them) and returns the converged result
-        of lowest ``J``; ``u0``'s is kept unless another is lower by more than ``tol * (1 + |J|)``."""
+        With ``starts = m > 0`` (this call's, default the ``starts`` option) it also descends from ``m`` constant
+        inputs spread evenly over the bounds (``m = 1``: their midpoint; ``m >= 2``: both bounds and ``m - 2`` levels
+        between them) and returns the converged result of lowest ``J``; ``u0``'s is kept unless another is lower by
+        more than ``tol * (1 + |J|)``."""
         lo = self.lo if lo is None else np.asarray(lo, dtype=float)
         hi = self.hi if hi is None else np.asarray(hi, dtype=float)
         if not (np.all(np.isfinite(lo)) and np.all(np.isfinite(hi))):
             raise ValueError("the shooting solver needs finite input bounds (set both lbu and ubu)")
         start = time.perf_counter()
+        m = self.starts if starts is None else int(starts)
+        if m < 0:
+            raise ValueError(f"starts must be >= 0, got {starts!r}")
         best = self._descend(u0, p, lo, hi, max_time, start)
-        if self.starts == 0:
+        if m == 0:
             return best
-        levels = [0.5] if self.starts == 1 else np.linspace(0.0, 1.0, self.starts)
+        levels = [0.5] if m == 1 else np.linspace(0.0, 1.0, m)
         iterations = best.iterations
         for i, level in enumerate(levels, start=1):
             other = self._descend(lo + level * (hi - lo), p, lo, hi, max_time, start)

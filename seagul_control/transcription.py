@@ -823,13 +823,18 @@ class Transcription:
         lam_g: np.ndarray | None = None,
         lam_x: np.ndarray | None = None,
         model_params: np.ndarray | None = None,
+        starts: int | None = None,
     ) -> TranscriptionSolution:
         """Solve from ``x_init`` with time to go ``tau`` (inputs assumed validated by the caller).
 
         The initial guess is ``guess``, else the stored one (:meth:`set`, :meth:`set_guess`), else
         :meth:`line_guess`; the bounds are the current ones (:meth:`set`). ``model_params``: the robot's
-        parameters (built with ``model_params=True``; default the task's own, ``task.theta``).
+        parameters (built with ``model_params=True``; default the task's own, ``task.theta``). ``starts``: extra
+        starts of the condensed solver for this solve (:class:`~seagul_control.shooting.ShootingSolver`; default its
+        ``shooting.starts`` option); the other solvers take none.
         """
+        if starts and self._shooting is None:
+            raise ValueError(f"starts={starts!r}: extra starts need the condensed solver, not {self.solver_name!r}")
         theta_arr = np.zeros(self.n_theta) if theta is None else np.asarray(theta, dtype=float).ravel()
         if theta_arr.size != self.n_theta:
             raise ValueError(f"theta must have {self.n_theta} entries, got {theta_arr.size}")
@@ -862,7 +867,7 @@ class Transcription:
         if lam_x is not None:
             args["lam_x0"] = lam_x
         if self._shooting is not None:
-            return self._solve_shooting(w0, p, float(tau))
+            return self._solve_shooting(w0, p, float(tau), starts)
         call: Any = self._solver if self._guard is None else self._guard
         start = time.perf_counter()
         try:
@@ -972,12 +977,19 @@ class Transcription:
         post = ca.Function(f"{name}_post", [U, p_mx], [traj, dense(c_l), dense(sens)])
         return f, fgh, post
 
-    def _solve_shooting(self, w0: np.ndarray, p: np.ndarray, tau: float) -> TranscriptionSolution:
+    @property
+    def condensed(self) -> bool:
+        """True when the condensed solver (``solver="shooting"``) solves this transcription (it takes ``starts``)."""
+        return self._shooting is not None
+
+    def _solve_shooting(
+        self, w0: np.ndarray, p: np.ndarray, tau: float, starts: int | None = None
+    ) -> TranscriptionSolution:
         """:meth:`solve` with ``solver="shooting"``: the inputs of ``w0`` start the condensed solve; the result is
         laid out as the lifted NLP's (states rolled out, multipliers from the costates)."""
         start = time.perf_counter()
         u_idx = np.concatenate(self._u_idx)
-        res = self._shooting.solve(w0[u_idx], p, self._lbw[u_idx], self._ubw[u_idx], self.max_solve_time)
+        res = self._shooting.solve(w0[u_idx], p, self._lbw[u_idx], self._ubw[u_idx], self.max_solve_time, starts)
         self._shooting_post.set_input(1, p)
         states_t, costates, dj_dp = (o.T.copy() for o in self._shooting_post(res.controls))
         elapsed = time.perf_counter() - start

@@ -187,7 +187,7 @@ def test_failed_solves_fall_back_to_the_shifted_plan_then_lqr(monkeypatch):
 
 
 def test_real_solver_failure_is_reported_not_raised():
-    task, mpc = _acrobot_mpc(max_iter=0)
+    task, mpc = _acrobot_mpc(max_iter=0, multistart="never")
     actions, _ = mpc.predict(_obs(task.goal + np.array([0.2, 0.1, 0.3, 0.0]), 5.0))
     info = mpc.last_info[0]
     assert actions.shape == (1,) and np.all(np.isfinite(actions))

@@ -155,7 +155,7 @@ def test_iteration_limit_is_a_reported_failure_and_the_mpc_falls_back():
     tr = Transcription(task, 5, step=0.1, final_box=False, solver="shooting", solver_options={"shooting.max_iter": 1})
     sol = tr.solve(task.goal + np.array([0.3, 0.3, 0.0, 0.0]), 3.0)
     assert not sol.success and sol.status == "Maximum_Iterations_Exceeded" and sol.iterations == 1
-    mpc = LimitedLookaheadMPC(task, None, 5, solver="shooting", max_iter=0, jit=False)
+    mpc = LimitedLookaheadMPC(task, None, 5, solver="shooting", max_iter=0, multistart="never", jit=False)
     u, info = mpc.act(task.goal + np.array([0.3, 0.3, 0.0, 0.0]), 3.0)
     assert not info.success and info.source in ("lqr", "zero") and np.all(np.isfinite(u))
 
@@ -233,13 +233,51 @@ def test_extra_starts_find_the_lower_minimum_and_keep_the_given_one_on_ties():
 def test_mpc_with_extra_starts_plans_no_worse_than_without():
     """``solver_options={"shooting.starts": 2}``: every step's plan costs at most the single-start plan's."""
     task = make_task("acrobot")
-    plain = LimitedLookaheadMPC(task, None, 5, solver="shooting", warm_start=False, jit=False)
-    multi = LimitedLookaheadMPC(
-        task, None, 5, solver="shooting", warm_start=False, jit=False, solver_options={"shooting.starts": 2}
-    )
+    options = {"solver": "shooting", "warm_start": False, "jit": False, "multistart": "never"}
+    plain = LimitedLookaheadMPC(task, None, 5, **options)
+    multi = LimitedLookaheadMPC(task, None, 5, solver_options={"shooting.starts": 2}, **options)
     for x in _starts(task, 8, seed=3):
         _, a = plain.act(x, 3.0)
         _, b = multi.act(x, 3.0)
         assert a.success and b.success
         assert b.objective <= a.objective + 1e-6 * (1 + abs(a.objective))
     assert b.iterations > a.iterations
+
+
+def test_mpc_multistart_modes_and_their_refusals():
+    task = make_task("acrobot")
+    assert LimitedLookaheadMPC(task, None, 5, jit=False).multistart == "rise"  # the condensed solver's default
+    assert LimitedLookaheadMPC(task, None, 5, solver="fatrop", jit=False).multistart == "never"
+    with pytest.raises(ValueError, match="multistart='rise' needs solver='shooting'"):
+        LimitedLookaheadMPC(task, None, 5, solver="fatrop", multistart="rise", jit=False)
+    with pytest.raises(ValueError, match="multistart must be"):
+        LimitedLookaheadMPC(task, None, 5, multistart="sometimes", jit=False)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match="multistart_starts"):
+        LimitedLookaheadMPC(task, None, 5, multistart_starts=0, jit=False)
+    with pytest.raises(ValueError, match="extra starts need the condensed solver"):
+        Transcription(task, 5, step=0.1, final_box=False, solver="ipopt").solve(task.goal, 3.0, starts=2)
+
+
+def test_rise_multistart_runs_the_extra_starts_when_the_plan_costs_more_than_the_last():
+    """``multistart="rise"``: extra starts at a cold start and when the warm-started plan costs more than the last
+    step's plan promised; then the plan is the "always" MPC's (the lowest over the same starts)."""
+    task = make_task("acrobot")
+    rise = LimitedLookaheadMPC(task, None, 5, jit=False)
+    always = LimitedLookaheadMPC(task, None, 5, multistart="always", jit=False)
+    never = LimitedLookaheadMPC(task, None, 5, multistart="never", jit=False)
+    x, tau = task.goal + np.array([0.4, -0.3, 0.5, 0.0]), 4.0
+    _, first = rise.act(x, tau)
+    assert first.extra_starts == 2 and never.act(x, tau)[1].extra_starts == 0
+    step = task.rk4_step()
+    u = rise._plans[0].controls[0]
+    x, tau = np.asarray(step(x, u, task.control_period)).ravel(), tau - task.control_period
+    _, calm = rise.act(x, tau)  # the plan's cost fell, as the stage cost paid says it should: no extra start
+    assert calm.extra_starts == 0 and calm.objective < first.objective
+    # The last plan promised less than the warm start now reaches: the extra starts run.
+    rise._plans[0].objective = -1.0
+    x, tau = np.asarray(step(x, rise._plans[0].controls[0], task.control_period)).ravel(), tau - task.control_period
+    _, raised = rise.act(x, tau)
+    _, reference = always.act(x, tau)
+    assert raised.extra_starts == 2 and raised.success
+    assert reference.extra_starts == 2
+    assert raised.objective <= reference.objective + 1e-8 * (1 + abs(reference.objective))
