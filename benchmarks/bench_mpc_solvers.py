@@ -6,10 +6,16 @@ lifted multiple-shooting transcription vs its inputs alone). This benchmark runs
 solver in one process, one after the other, over the 20 x 20 grid and the 100 held-out starts, and reports each
 one's success, fallback steps and step time (median, p95), and on how many grid starts the two agree.
 
-    .venv/bin/python benchmarks/bench_mpc_solvers.py [--quick] [--solvers shooting,fatrop] [--network PATH]
+    .venv/bin/python benchmarks/bench_mpc_solvers.py [--quick] [--solvers shooting,shooting:never,fatrop]
+        [--network PATH]
+
+A solver may carry the MPC's ``multistart`` mode after a colon (``shooting:never``, ``shooting:always``; plain
+``shooting`` is the default, ``"rise"``: extra starts from the input bounds at a cold start and when the warm plan's
+cost rose).
 
 Last line: ``{"solvers": {NAME: {"success_rate", "heldout_success_rate", "median_ms", "p95_ms", "fallback_steps",
-"steps", "wall_s"}}, "grid_agreement", "network", "grid", "heldout", "machine"}``.
+"multistart_steps", "steps", "wall_s"}}, "grid_agreement", "network", "grid", "heldout", "machine"}``
+(``grid_agreement``: the fraction of grid starts on which the first two entries agree).
 """
 
 from __future__ import annotations
@@ -32,7 +38,11 @@ from _common import machine  # noqa: E402
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="a 4 x 4 grid and 4 held-out starts")
-    parser.add_argument("--solvers", default="shooting,fatrop", help="comma-separated LimitedLookaheadMPC solvers")
+    parser.add_argument(
+        "--solvers",
+        default="shooting,shooting:never,fatrop",
+        help="comma-separated LimitedLookaheadMPC solvers, each optionally with ':<multistart mode>'",
+    )
     parser.add_argument("--network", default=None, help="value network file (default: closed_loop.json's acrobot)")
     args = parser.parse_args(argv)
 
@@ -53,26 +63,29 @@ def main(argv: list[str] | None = None) -> int:
     )
     rows: dict[str, dict[str, object]] = {}
     grid_success: dict[str, np.ndarray] = {}
-    for solver in [s for s in args.solvers.split(",") if s]:
-        spec = PolicySpec("mpc", solver, network, (*options, ("solver", solver)))
+    for entry in [s for s in args.solvers.split(",") if s]:
+        solver, _, mode = entry.partition(":")
+        chosen = (("solver", solver), *((("multistart", mode),) if mode else ()))
+        spec = PolicySpec("mpc", entry, network, (*options, *chosen))
         t0 = time.perf_counter()
         results = evaluate("acrobot", [spec], starts, workers=1, progress=False)
         wall = time.perf_counter() - t0
         times = np.array([t for r in results for t in r.solve_times]) * 1e3
         on_grid, held = results[: len(grid)], results[len(grid) :]
-        grid_success[solver] = np.array([r.success for r in on_grid])
-        rows[solver] = {
-            "success_rate": float(grid_success[solver].mean()),
+        grid_success[entry] = np.array([r.success for r in on_grid])
+        rows[entry] = {
+            "success_rate": float(grid_success[entry].mean()),
             "heldout_success_rate": float(np.mean([r.success for r in held])),
             "median_ms": float(np.median(times)),
             "p95_ms": float(np.percentile(times, 95)),
             "fallback_steps": int(sum(r.fallbacks for r in results)),
+            "multistart_steps": int(sum(r.multistart_steps for r in results)),
             "steps": int(times.size),
             "wall_s": round(wall, 1),
         }
-        print(f"[bench] {solver}: {rows[solver]}", file=sys.stderr, flush=True)
+        print(f"[bench] {entry}: {rows[entry]}", file=sys.stderr, flush=True)
     names = list(grid_success)
-    agreement = float(np.mean(grid_success[names[0]] == grid_success[names[1]])) if len(names) == 2 else float("nan")
+    agreement = float(np.mean(grid_success[names[0]] == grid_success[names[1]])) if len(names) >= 2 else float("nan")
     out = {
         "solvers": rows,
         "grid_agreement": agreement,

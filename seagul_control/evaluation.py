@@ -111,6 +111,8 @@ class EpisodeResult:
     """Solver iterations per step, MPC policies only."""
     fallbacks: int = 0
     """Steps whose action did not come from a converged solve."""
+    multistart_steps: int = 0
+    """Steps whose solve also descended from extra starts (``LimitedLookaheadMPC(multistart=...)``)."""
     states: list[list[float]] = field(default_factory=list)
     """The visited states (first to last) when recorded."""
     queries: list[list[float]] = field(default_factory=list)
@@ -374,6 +376,7 @@ def run_policy_episode(
         solve_times=[float(s.solve_time) for s in episode],
         iterations=[int(s.iterations) for s in episode],
         fallbacks=sum(1 for s in episode if s.source != "solver"),
+        multistart_steps=sum(1 for s in episode if getattr(s, "extra_starts", 0)),
         states=states,
         robot=[] if robot is None else np.asarray(robot, dtype=float).tolist(),
     )
