@@ -311,6 +311,7 @@ def evaluate_network(
         "heldout_success_rate": float(np.mean([r.success for r in held])) if held else float("nan"),
         "grid_success": [bool(r.success) for r in grid],
         "fallback_steps": int(sum(r.fallbacks for r in results)),
+        "multistart_steps": int(sum(r.multistart_steps for r in results)),
         "steps": int(sum(r.steps for r in results)),
         "median_ms": float(np.median(times) * 1e3),
         "p95_ms": float(np.percentile(times, 95) * 1e3),
@@ -346,6 +347,7 @@ def timed_steps(bench: BenchConfig, path: Path, starts: np.ndarray) -> dict[str,
         "median_ms": float(np.median(times)),
         "p95_ms": float(np.percentile(times, 95)),
         "steps": int(times.size),
+        "multistart_steps": int(sum(r.multistart_steps for r in results)),
         "success_rate": float(np.mean([r.success for r in results])),
     }
 
@@ -546,6 +548,9 @@ def shipped_block(
         "p95_ms": timing["p95_ms"],
         "timed_steps": timing["steps"],
         "timed_success_rate": timing["success_rate"],
+        # Steps whose solve also descended from extra starts (the MPC's multistart; its default, "rise", for the
+        # condensed solver), as a fraction of the timed steps.
+        "multistart_fraction": timing.get("multistart_steps", 0) / max(int(timing["steps"]), 1),
         "query_error_median": _median(shipped, "query_error", "median"),
         "query_error_p95": _median(shipped, "query_error", "p95"),
         "grid": f"{bench.grid}x{bench.grid}",

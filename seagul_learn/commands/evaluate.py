@@ -48,6 +48,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "task's, acrobot 1)",
     )
     parser.add_argument(
+        "--multistart",
+        choices=("never", "rise", "always"),
+        default=None,
+        help="when the learned MPCs' condensed solver also descends from the input bounds (default: the MPC's, "
+        "'rise' on the condensed solver: at a cold start and when the warm plan's cost rose)",
+    )
+    parser.add_argument(
         "--env",
         default=None,
         metavar="ENV_ID",
@@ -79,6 +86,8 @@ def specs_from_args(args: argparse.Namespace) -> list[Any]:
         if args.goal_blend < 0:
             raise ValueError(f"--goal-blend must be >= 0, got {args.goal_blend}")
         learned.append(("goal_blend", args.goal_blend))
+    if getattr(args, "multistart", None) is not None:
+        learned.append(("multistart", args.multistart))
     for k, path in enumerate(args.network):
         label = args.label[k] if k < len(args.label) else f"mpc[{Path(path).parent.name or Path(path).stem}]"
         specs.append(PolicySpec("mpc", label, path, tuple(learned)))
