@@ -296,14 +296,15 @@ def test_evaluation_over_robots_retargets_a_model_params_oracle_like_a_rebuilt_o
     np.testing.assert_allclose(run.final_state, ref.final_state, rtol=1e-6, atol=1e-6)
 
 
-def test_evaluate_passes_the_multistart_mode_to_the_learned_mpcs():
+def test_evaluate_passes_the_multistart_mode_to_the_learned_mpcs(tmp_path):
     import argparse
 
     from seagul_learn.commands.evaluate import add_arguments, specs_from_args
 
     parser = argparse.ArgumentParser()
     add_arguments(parser)
-    base = ["--task", "acrobot", "--out", "o", "--network", "n.pt"]
+    (tmp_path / "n.pt").write_bytes(b"")
+    base = ["--task", "acrobot", "--out", "o", "--network", str(tmp_path / "n.pt")]
     (spec,) = specs_from_args(parser.parse_args([*base, "--multistart", "never"]))
     assert spec.option_dict()["multistart"] == "never"
     (default,) = specs_from_args(parser.parse_args(base))
