@@ -605,7 +605,8 @@ def aggregate_task(
     The contract's fields are those of ``budget`` (the shipped one); the shipped ``network`` is timed again in this
     process. Rows may carry the training records' fields (validation MSEs, solve time) and may be grid-only (no
     held-out rate or query error: NaN). ``figure``: also draw ``success_vs_solves`` there. ``compare``: other
-    methods' stored evaluations (label -> folder of ``b<B>/seed<N>.json``), summarised and drawn beside."""
+    methods' stored evaluations (label -> folder of ``b<B>/seed<N>.json``, or of ``seed<N>.json`` at ``budget``),
+    summarised and drawn beside."""
     seeds = list(bench.seed_list or range(bench.seeds))
     budgets = sorted(bench.budgets)
     table = _stored_rows(eval_dir, seeds, budgets)
@@ -622,7 +623,11 @@ def aggregate_task(
     grid_starts, _ = start_grid(task, bench.grid)
     timing = timed_steps(bench, network, grid_starts)
     block = shipped_block(bench, table[budget], full, network, timing, budget)
-    tables = {SHIPPED: table, **{label: _stored_rows(folder, seeds, None) for label, folder in (compare or {}).items()}}
+    tables = {SHIPPED: table}
+    for label, folder in (compare or {}).items():
+        # b<B>/seed<N>.json per budget, or seed<N>.json directly: the shipped budget's
+        by_budget = any(p.is_dir() and p.name[1:].isdigit() for p in folder.glob("b*"))
+        tables[label] = _stored_rows(folder, seeds, None if by_budget else [budget])
     summary = summarize(bench, tables, full)
     if figure is not None:
         title = f"{bench.task}: {bench.horizon}-step MPC, up to {len(seeds)} seeds (aggregated evaluations)"
