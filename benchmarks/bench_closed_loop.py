@@ -87,7 +87,8 @@ METHODS["closed-loop+visited"] = {**METHODS["closed-loop+sobolev"], "cl_visited_
 # The shipped recipe (twelfth session): closed-loop+visited, then the final refit fits 6 members and deploys the 3
 # whose MPC flies best on training starts: every 3-subset flies 100, the best 4 fly 300 more (refits of one buffer
 # differ by tens of points of closed-loop success; the selection costs no NLP solve, ~5-10 minutes with the
-# condensed MPC solver).
+# condensed MPC solver). The selection and the evaluation fly LimitedLookaheadMPC's default, on the acrobot the
+# condensed solver with extra starts where the plan's cost rises (multistart="rise", thirteenth session).
 METHODS["closed-loop+select"] = {
     **METHODS["closed-loop+visited"],
     "refit_candidates": 6,
