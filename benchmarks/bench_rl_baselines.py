@@ -4,7 +4,7 @@ Usage::
 
     .venv/bin/python benchmarks/bench_rl_baselines.py [--quick] [--tasks acrobot,glider] [--algos PPO,SAC]
         [--seeds 3] [--workers 2] [--out DIR] [--steps acrobot:PPO=2000000,...] [--sweep] [--no-ship]
-        [--update benchmarks/results/rl_baselines.json]
+        [--update benchmarks/results/rl_baselines.json] [--set acrobot:SAC:net_arch=64,64 ...]
 
 For every task, algorithm and seed one run of :func:`seagul_learn.baselines.train_sb3` (zoo-derived settings, see
 that module) records its learning curve: success on the task's evaluation grid (acrobot 20 x 20 over
@@ -206,6 +206,7 @@ def run_task(task: str, algos: list[str], args: argparse.Namespace, out: Path, s
             budget = args.sweep_steps.get((task, algo), max(steps // 5, 1))
             sweeps[algo] = sweep(task, algo, budget, out / task / algo / "sweep", args.workers, args.quick)
             best = sweeps[algo]["best"]
+        best = {**best, **args.set.get((task, algo), {})}
         eval_every = max(steps // 20, 1)
         jobs = []
         for seed in range(args.seeds):
@@ -249,6 +250,10 @@ def run_task(task: str, algos: list[str], args: argparse.Namespace, out: Path, s
         }
         if args.settings_from:
             result[algo.lower()]["settings_from"] = str(args.settings_from)
+        if (task, algo) in args.set:
+            result[algo.lower()]["settings_set"] = {
+                k: list(v) if isinstance(v, tuple) else v for k, v in args.set[(task, algo)].items()
+            }
     if sweeps:
         (out / task / "sweep.json").write_text(json.dumps(sweeps, indent=1))
         result["sweep"] = sweeps
@@ -302,6 +307,37 @@ def _parse_steps(text: str) -> dict[tuple[str, str], int]:
     return table
 
 
+def _parse_set(text: str) -> tuple[tuple[str, str], str, Any]:
+    """``acrobot:SAC:net_arch=64,64`` -> ``(("acrobot", "SAC"), "net_arch", (64, 64))``; the field must be one of
+    :class:`SB3Config`'s settings and the value is read as that field's type."""
+    from dataclasses import fields
+
+    key, sep, value = text.partition("=")
+    parts = key.split(":")
+    if not sep or len(parts) != 3 or parts[0] not in TASKS or parts[1] not in ALGOS:
+        raise argparse.ArgumentTypeError(f"--set entries look like acrobot:SAC:net_arch=64,64, got {text!r}")
+    task, algo, name = parts
+    settable = {f.name for f in fields(SB3Config)} - {"algo", "env_id", "seed", "total_timesteps"}
+    if name not in settable:
+        raise argparse.ArgumentTypeError(f"--set: {name!r} is not a setting; choose from {sorted(settable)}")
+    default = getattr(SB3Config(), name)
+    try:
+        if isinstance(default, tuple):
+            parsed: Any = tuple(int(w) for w in value.split(",") if w)
+        elif isinstance(default, bool) or name == "normalize_reward":
+            if value.lower() not in ("true", "false", "none"):
+                raise ValueError(value)
+            parsed = {"true": True, "false": False, "none": None}[value.lower()]
+        elif isinstance(default, dict):
+            parsed = json.loads(value)
+        else:
+            parsed = type(default)(value)
+        replace(SB3Config(algo=algo), **{name: parsed})  # the config's own checks
+    except (ValueError, TypeError, json.JSONDecodeError) as exc:
+        raise argparse.ArgumentTypeError(f"--set {text!r}: bad value for {name} ({exc})") from exc
+    return (task, algo), name, parsed
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="a minutes-long check of the pipeline")
@@ -319,6 +355,14 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="train with the best settings of a stored sweep (e.g. benchmarks/results/rl_sweep.json), no sweep",
     )
+    parser.add_argument(
+        "--set",
+        type=_parse_set,
+        action="append",
+        default=[],
+        metavar="TASK:ALGO:FIELD=VALUE",
+        help="a setting over the sweep's (or the zoo's), e.g. acrobot:SAC:net_arch=64,64; repeatable",
+    )
     parser.add_argument("--out", default=None, help="work directory (default /tmp/seagul-bench-rl[-quick])")
     parser.add_argument("--no-ship", action="store_true", help="do not copy the best models into the repository")
     parser.add_argument(
@@ -327,6 +371,10 @@ def main(argv: list[str] | None = None) -> int:
         help="merge this run's tasks into this result JSON (its other tasks kept) and print the merged object",
     )
     args = parser.parse_args(argv)
+    overrides: dict[tuple[str, str], dict[str, Any]] = {}
+    for key, name, value in args.set:
+        overrides.setdefault(key, {})[name] = value
+    args.set = overrides
     if args.seeds is None:
         args.seeds = 2 if args.quick else 3
     algos = [a for a in args.algos.split(",") if a]

@@ -245,3 +245,55 @@ def test_bench_update_of_one_algorithm_keeps_the_others_and_takes_settings_from_
     assert len(acro["sac"]["curves"]) == 2 and acro["sac"]["curves"][0][1]["env_steps"] == 20
     # PPO's curves were not stored, so this run's figure is SAC's alone, under its own name.
     assert Path(acro["figure"]).name == "rl_curves_acrobot_sac.png" and Path(acro["figure"]).is_file()
+
+
+def test_bench_set_overrides_a_setting_per_task_and_algorithm_and_refuses_bad_ones(tmp_path, monkeypatch) -> None:
+    """``bench_rl_baselines --set acrobot:SAC:net_arch=64,64``: the seeds of that task and algorithm train with it
+    (over the sweep's or the zoo's), the result records it, and unknown fields, fixed fields or bad values are
+    refused by name."""
+    import importlib
+    import json
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.syspath_prepend(str(root))
+    bench = importlib.import_module("benchmarks.bench_rl_baselines")
+    seen = []
+
+    def fake_run(config, out, n_grid=0, n_heldout=100):
+        seen.append(config)
+        curve = [{"env_steps": 10, "wall_s": 1.0, "success_rate": 0.0, "mean_return": -5.0}]
+        stats = {"success_rate": 0.0, "mean_return": -1.0, "mean_final_distance": 3.0}
+        return {
+            "config": config.to_dict(),
+            "resolved": config.resolved(),
+            "env_steps": 10,
+            "train_wall_s": 1.0,
+            "curve": curve,
+            "model": str(out / "model.zip"),
+            "grid": stats,
+            "heldout": stats,
+        }
+
+    monkeypatch.setattr(bench, "_run", fake_run)
+    args = ["--quick", "--tasks", "acrobot", "--algos", "SAC", "--seeds", "1", "--workers", "1"]
+    args += ["--out", str(tmp_path / "w"), "--set", "acrobot:SAC:net_arch=64,64"]
+    args += ["--set", "acrobot:SAC:normalize_reward=true", "--set", "glider:SAC:gamma=0.9"]
+    assert bench.main(args) == 0
+    (config,) = seen
+    assert config.net_arch == (64, 64) and config.normalize_reward is True and config.gamma == 0.98
+    assert config.resolved()["net_arch"] == [64, 64]
+    assert bench._parse_set("glider:PPO:learning_rate=1e-3") == (("glider", "PPO"), "learning_rate", 1e-3)
+    for bad, match in [
+        ("acrobot:SAC:widths=64", "not a setting"),
+        ("acrobot:SAC:seed=3", "not a setting"),
+        ("acrobot:SAC:gamma=2", "bad value for gamma"),
+        ("acrobot:SAC:normalize_reward=maybe", "bad value"),
+        ("cartpole:SAC:gamma=0.9", "look like"),
+        ("acrobot:SAC:gamma", "look like"),
+    ]:
+        with pytest.raises(Exception, match=match):
+            bench._parse_set(bad)
+    with pytest.raises(SystemExit):
+        bench.main(["--quick", "--set", "acrobot:DQN:gamma=0.9"])
+    assert json.loads(json.dumps(bench._parse_set('acrobot:SAC:algo_overrides={"tau": 0.01}')[2])) == {"tau": 0.01}
