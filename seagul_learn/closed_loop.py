@@ -70,6 +70,8 @@ _STREAM_EPISODE_ROBOTS = 14
 _STREAM_VISITED = 15
 _STREAM_SELECT_STARTS = 16
 _STREAM_SELECT_FINAL = 17
+_STREAM_SELECT_SLICE = 18
+_STREAM_SELECT_FINAL_SLICE = 19
 
 
 @dataclass(frozen=True)
@@ -502,6 +504,8 @@ class MemberSelection:
     """Success rate of the second stage's subsets over all their episodes (empty without one)."""
     final_episodes: int = 0
     """Further episodes each finalist flew (stream ``[seed, 17]``)."""
+    slice_fraction: float = 0.0
+    """Share of each stage's starts drawn on the evaluation grid's slice of X0 (:func:`sample_grid_slice`)."""
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict (JSON)."""
@@ -512,7 +516,33 @@ class MemberSelection:
             "scores": {",".join(map(str, k)): v for k, v in self.scores.items()},
             "final_episodes": self.final_episodes,
             "finalists": {",".join(map(str, k)): v for k, v in self.finalists.items()},
+            "slice_fraction": self.slice_fraction,
         }
+
+
+def sample_grid_slice(task: Task, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` starts drawn uniformly on the evaluation grid's slice of X0: the grid's two coordinates
+    (``task.profile.grid``) uniform over X0's range, every other one where the grid holds it (the acrobot: at rest;
+    the glider: X0's centre). Random draws from the distribution the grid discretises, never its points."""
+    grid = task.profile.grid
+    low, high = np.asarray(task.x0_low, dtype=float), np.asarray(task.x0_high, dtype=float)
+    base = 0.5 * (low + high)
+    for i, value in grid.fixed:
+        base[i] = value
+    dims = list(grid.resolved_coords(task))
+    out = np.repeat(base[None, :], int(n), axis=0)
+    out[:, dims] = rng.uniform(low[dims], high[dims], size=(int(n), 2))
+    return out
+
+
+def _selection_starts(task: Task, n: int, seed: int, stream: int, slice_stream: int, fraction: float) -> np.ndarray:
+    """``n`` selection starts: ``round(fraction * n)`` on the grid's slice (:func:`sample_grid_slice`, stream
+    ``[seed, slice_stream]``), the rest uniform over X0 (stream ``[seed, stream]``)."""
+    on_slice = round(float(fraction) * int(n))
+    parts = [task.sample_x0(np.random.default_rng([int(seed), stream]), int(n) - on_slice)]
+    if on_slice:
+        parts.append(sample_grid_slice(task, on_slice, np.random.default_rng([int(seed), slice_stream])))
+    return np.vstack(parts)
 
 
 def select_members(
@@ -528,6 +558,7 @@ def select_members(
     trust_region: str = "none",
     jit: bool = True,
     progress: bool = False,
+    slice_fraction: float = 0.0,
 ) -> MemberSelection:
     """The ``size`` members of ``candidates`` whose ensemble the deployed MPC flies best.
 
@@ -538,7 +569,9 @@ def select_members(
     the first stage's scores of the top subsets differ by less than their binomial noise (~2 points at 100
     episodes). Ties go to the first subset in lexicographic order. Model selection on training episodes by the
     metric that matters, at no NLP solve: refits of one buffer differ by tens of points of closed-loop success
-    (docs/closed_loop.md, twelfth session).
+    (docs/closed_loop.md, twelfth session). ``slice_fraction`` of each stage's starts are drawn on the evaluation
+    grid's slice of X0 instead (:func:`sample_grid_slice`, streams ``[seed, 18]`` and ``[seed, 19]``): the acrobot's
+    grid starts at rest, a 2-D slice that uniform draws over the 4-D X0 rarely come near.
     """
     import itertools
 
@@ -553,6 +586,8 @@ def select_members(
             f"select_members: episodes >= 1, finalists >= 0 and final_episodes >= 0 needed, got {episodes}, "
             f"{finalists}, {final_episodes}"
         )
+    if not 0.0 <= float(slice_fraction) <= 1.0:
+        raise ValueError(f"select_members: slice_fraction must be in [0, 1], got {slice_fraction}")
     if candidates.n_params:
         raise ValueError("select_members: candidates over robots are not supported (select on the nominal model)")
     subsets = list(itertools.combinations(range(k), int(size)))
@@ -575,20 +610,24 @@ def select_members(
 
     from tqdm import tqdm
 
-    first = task.sample_x0(np.random.default_rng([int(seed), _STREAM_SELECT_STARTS]), int(episodes))
+    first = _selection_starts(task, int(episodes), seed, _STREAM_SELECT_STARTS, _STREAM_SELECT_SLICE, slice_fraction)
     counts = {s: wins(s, first) for s in tqdm(subsets, desc="member selection", unit="subset", disable=not progress)}
     scores = {s: c / float(episodes) for s, c in counts.items()}
     ranked = sorted(subsets, key=lambda s: -counts[s])  # stable: ties keep lexicographic order
     final: dict[tuple[int, ...], float] = {}
     if finalists and final_episodes:
-        more = task.sample_x0(np.random.default_rng([int(seed), _STREAM_SELECT_FINAL]), int(final_episodes))
+        more = _selection_starts(
+            task, int(final_episodes), seed, _STREAM_SELECT_FINAL, _STREAM_SELECT_FINAL_SLICE, slice_fraction
+        )
         total = int(episodes) + int(final_episodes)
         for s in ranked[: int(finalists)]:
             final[s] = (counts[s] + wins(s, more)) / float(total)
         best = max(ranked[: int(finalists)], key=lambda s: final[s])
-        return MemberSelection(best, final[best], scores, int(episodes), final, int(final_episodes))
+        return MemberSelection(
+            best, final[best], scores, int(episodes), final, int(final_episodes), float(slice_fraction)
+        )
     best = ranked[0]
-    return MemberSelection(best, scores[best], scores, int(episodes))
+    return MemberSelection(best, scores[best], scores, int(episodes), slice_fraction=float(slice_fraction))
 
 
 # ------------------------------------------------------------------------------------------ planner-query error

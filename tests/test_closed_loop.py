@@ -448,6 +448,41 @@ def test_select_members_scores_every_subset_on_training_starts_and_keeps_the_bes
     assert set(two.finalists) == {(0, 3), (1, 3)} and two.final_episodes == 3
     assert two.members == (0, 3) and two.success == 1.0
     assert len({x for _, x in seen}) == 5  # 2 first-stage starts + 3 second-stage starts
+    # half of each stage's starts on the grid's slice (at rest): recorded, and refused outside [0, 1]
+    seen.clear()
+    half = select_members(task, cands, 2, 2, seed=5, finalists=2, final_episodes=2, jit=False, slice_fraction=0.5)
+    assert half.slice_fraction == 0.5 and half.as_dict()["slice_fraction"] == 0.5
+    at_rest = {x for _, x in seen if x[2] == 0.0 and x[3] == 0.0}
+    assert len(at_rest) == 2 and len({x for _, x in seen}) == 4  # one at rest per stage
+    with pytest.raises(ValueError, match="slice_fraction"):
+        select_members(task, cands, 2, 2, seed=5, jit=False, slice_fraction=1.5)
+
+
+def test_grid_slice_starts_lie_on_the_evaluation_grids_slice_of_x0():
+    """``sample_grid_slice``: the grid's two coordinates uniform over X0's range (spread over it), the others where
+    the grid holds them (acrobot at rest, glider at X0's centre); seeded draws repeat."""
+    from seagul_control.evaluation import start_grid
+    from seagul_learn.closed_loop import _selection_starts, sample_grid_slice
+
+    for name in ("acrobot", "glider"):
+        task = make_task(name)
+        grid, _ = start_grid(task, 4)
+        draws = sample_grid_slice(task, 400, np.random.default_rng(3))
+        dims = list(task.profile.grid.resolved_coords(task))
+        others = [i for i in range(task.nx) if i not in dims]
+        np.testing.assert_allclose(draws[:, others], np.repeat(grid[:1, others], 400, axis=0))
+        assert all(task.in_x0(x) for x in draws)
+        low, high = task.x0_low[dims], task.x0_high[dims]
+        assert np.all(draws[:, dims].min(axis=0) < low + 0.05 * (high - low))
+        assert np.all(draws[:, dims].max(axis=0) > high - 0.05 * (high - low))
+        np.testing.assert_array_equal(draws, sample_grid_slice(task, 400, np.random.default_rng(3)))
+    task = make_task("acrobot")
+    mixed = _selection_starts(task, 10, 4, 16, 18, 0.3)
+    assert np.count_nonzero(np.all(mixed[:, 2:] == 0.0, axis=1)) == 3  # three on the slice, at rest
+    # fraction 0 draws exactly what the selection drew before the option existed
+    np.testing.assert_array_equal(
+        _selection_starts(task, 10, 4, 16, 18, 0.0), task.sample_x0(np.random.default_rng([4, 16]), 10)
+    )
 
 
 def test_refit_candidates_deploys_the_selected_members(tmp_path):
