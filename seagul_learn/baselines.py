@@ -110,6 +110,12 @@ class SB3Config:
     """A fixed factor on the training reward (SAC's reward scale, Haarnoja et al. 2018, sec. 5.2): the optimal
     policy is unchanged, the critic's targets shrink (the acrobot's zero-torque return is -2.2e4). Applied inside
     each env after its ``Monitor``, so logged episode returns and every evaluation stay in the task's units."""
+    miss_penalty: float = 0.0
+    """Added to the learner's last reward of an episode: ``-miss_penalty * violation``, the final state's miss of
+    the task's success rule in units of its tolerances (``SuccessRule.violation``; 0 when it succeeds). The
+    glider's NLP imposes the perch as a constraint, which its env's reward (the trajectory cost) does not carry:
+    there not perching is cheaper than perching, and a learner is not asked to perch without this. Logged returns
+    and evaluations stay the trajectory cost."""
     terminal_at_horizon: bool = True
     """The end of the task's horizon is a termination for the learner, not a time-limit truncation. The seagul envs
     are finite-horizon problems with the time to go in the observation and the terminal cost in the last reward, so
@@ -143,6 +149,8 @@ class SB3Config:
             raise ValueError(f"net_arch widths must be >= 1, got {self.net_arch}")
         if not (self.reward_scale > 0 and math.isfinite(self.reward_scale)):
             raise ValueError(f"reward_scale must be a finite number > 0, got {self.reward_scale}")
+        if not (self.miss_penalty >= 0 and math.isfinite(self.miss_penalty)):
+            raise ValueError(f"miss_penalty must be a finite number >= 0, got {self.miss_penalty}")
 
     # ------------------------------------------------------------------------------------ resolved settings
     def resolved(self) -> dict[str, Any]:
@@ -157,6 +165,7 @@ class SB3Config:
             "policy_kwargs": dict(zoo.get("policy_kwargs", {})),
             "normalize_reward": self.reward_normalized(),
             "reward_scale": float(self.reward_scale),
+            "miss_penalty": float(self.miss_penalty),
         }
 
     def reward_normalized(self) -> bool:
@@ -203,10 +212,22 @@ def task_of_env(env_id: str) -> Any:
         env.close()
 
 
-def _learner_view(env: Any, scale: float, terminal_at_horizon: bool) -> Any:
-    """``env`` as the learner sees it: reward times ``scale``, and (``terminal_at_horizon``) the horizon's end a
-    termination (``SB3Config.reward_scale``, ``SB3Config.terminal_at_horizon``)."""
+def _learner_view(env: Any, scale: float, terminal_at_horizon: bool, miss_penalty: float = 0.0) -> Any:
+    """``env`` as the learner sees it: ``-miss_penalty * violation`` on an episode's last step, reward times
+    ``scale``, and (``terminal_at_horizon``) the horizon's end a termination (``SB3Config.miss_penalty``,
+    ``SB3Config.reward_scale``, ``SB3Config.terminal_at_horizon``)."""
     import gymnasium as gym
+
+    class MissPenalty(gym.Wrapper):
+        """The last reward of an episode also pays for missing the task's success rule (its final state's
+        ``SuccessRule.violation``)."""
+
+        def step(self, action: Any) -> Any:
+            obs, reward, terminated, truncated, info = self.env.step(action)
+            if terminated or truncated:
+                task = self.env.unwrapped.task
+                reward = float(reward) - miss_penalty * task.profile.success.violation(task, info["state"])
+            return obs, reward, terminated, truncated, info
 
     class HorizonEndTerminates(gym.Wrapper):
         """``terminated = terminated or truncated``, ``truncated = False``: the finite horizon's end is terminal."""
@@ -215,6 +236,8 @@ def _learner_view(env: Any, scale: float, terminal_at_horizon: bool) -> Any:
             obs, reward, terminated, truncated, info = self.env.step(action)
             return obs, reward, bool(terminated or truncated), False, info
 
+    if miss_penalty:
+        env = MissPenalty(env)
     if scale != 1.0:
         env = gym.wrappers.TransformReward(env, lambda r: float(r) * scale)
     return HorizonEndTerminates(env) if terminal_at_horizon else env
@@ -287,7 +310,10 @@ def training_env(config: SB3Config) -> Any:
         seed=config.seed,
         vec_env_cls=DummyVecEnv,
         wrapper_class=partial(
-            _learner_view, scale=float(config.reward_scale), terminal_at_horizon=bool(config.terminal_at_horizon)
+            _learner_view,
+            scale=float(config.reward_scale),
+            terminal_at_horizon=bool(config.terminal_at_horizon),
+            miss_penalty=float(config.miss_penalty),
         ),
     )
     if config.normalize:

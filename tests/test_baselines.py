@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import numpy as np
 import pytest
@@ -87,6 +88,45 @@ def test_the_horizon_end_is_a_termination_for_the_learner():
     del stored["terminal_at_horizon"]  # a run from before the field: it bootstrapped past the end
     assert SB3Config(algo="PPO", terminal_at_horizon=False).describes(stored)
     assert not SB3Config(algo="PPO").describes(stored)
+
+
+def test_miss_penalty_charges_the_last_reward_for_missing_the_success_rule():
+    """``miss_penalty``: only the episode's last reward changes, by ``-miss_penalty * violation`` of the final state
+    (the glider's perch box in units of its tolerances); Monitor's return stays the trajectory cost."""
+    from seagul_envs import make_task
+
+    glider = make_task("glider")
+    rule = glider.profile.success
+    assert rule.violation(glider, glider.goal) == 0.0
+    miss = glider.goal.copy()
+    miss[0] -= 0.15  # 0.1 m beyond the 0.05 m tolerance: 2 tolerances
+    miss[4] += 3.0  # 1 m/s beyond 2 m/s: half a tolerance
+    assert rule.violation(glider, miss) == pytest.approx(2.5)
+    acrobot = make_task("acrobot")
+    far = acrobot.goal + np.array([0.0, 0.3, 0.4, 0.0])  # distance 0.5: 9 tolerances of 0.05 beyond it
+    assert acrobot.profile.success.violation(acrobot, far) == pytest.approx(9.0)
+
+    base = SB3Config(algo="SAC", env_id="SeagulGlider-v0", seed=3, normalize=False)
+    plain, plain_return, _ = _fixed_torque_episode(base)
+    venv = training_env(replace(base, miss_penalty=10.0))
+    venv.reset()
+    rewards = []
+    while True:
+        _, reward, done, info = venv.step(np.full((1, 1), 7.0, dtype=np.float32))
+        rewards.append(float(reward[0]))
+        if done[0]:
+            break
+    assert len(rewards) == len(plain) and rewards[:-1] == plain[:-1]
+    violation = rule.violation(glider, info[0]["state"])
+    assert violation > 1.0
+    assert rewards[-1] == pytest.approx(plain[-1] - 10.0 * violation, rel=1e-5)
+    assert float(info[0]["episode"]["r"]) == pytest.approx(plain_return, rel=1e-6)
+    stored = SB3Config(algo="SAC").to_dict()
+    del stored["miss_penalty"]  # a config.json written before the field existed
+    assert SB3Config(algo="SAC").describes(stored)
+    assert not SB3Config(algo="SAC", miss_penalty=1.0).describes(stored)
+    with pytest.raises(ValueError, match="miss_penalty"):
+        SB3Config(miss_penalty=-1.0)
 
 
 @pytest.mark.parametrize(

@@ -136,6 +136,20 @@ class SuccessRule:
                 return False
         return all(bool(_COMPARISONS[op](abs(err[i]), tol)) for i, op, tol in self.per_coordinate)
 
+    def violation(self, task: Task, x: Any) -> float:
+        """How far the final state ``x`` misses the rule, in units of its tolerances: the sum over its conditions of
+        ``max(0, |e| - tol) / tol`` (``|e|`` the distance or the coordinate's error). 0 where every condition
+        holds up to its boundary; continuous in ``x``, so a learner's penalty on it has a slope towards the goal
+        (``seagul_learn.baselines.SB3Config.miss_penalty``). The bounds' condition is not part of it."""
+        err = np.asarray(x, dtype=np.float64) - task.goal
+        total = 0.0
+        if self.distance is not None:
+            sel = err if self.coords is None else err[list(self.coords)]
+            total += max(0.0, float(np.linalg.norm(sel)) - self.distance) / self.distance
+        for i, _, tol in self.per_coordinate:
+            total += max(0.0, abs(float(err[i])) - tol) / tol
+        return total
+
     def describe(self, task: Task) -> str:
         """The rule in one line, e.g. ``||x(T) - x*|| < 0.05``."""
         parts = []
