@@ -51,6 +51,9 @@ def main() -> None:
     parser.add_argument("--select-episodes", type=int, default=100, help="closed-loop episodes per candidate subset")
     parser.add_argument("--finalists", type=int, default=0, help="second stage: the best N subsets fly more starts")
     parser.add_argument("--final-episodes", type=int, default=0, help="second-stage episodes per finalist")
+    parser.add_argument(
+        "--slice-fraction", type=float, default=0.0, help="share of selection starts on the grid's slice of X0"
+    )
     args = parser.parse_args()
     if args.cap <= 0 or args.grad_max <= 0 or args.steps < 1:
         parser.error("--cap and --grad-max must be > 0 and --steps >= 1")
@@ -74,6 +77,7 @@ def main() -> None:
         select_episodes=args.select_episodes,
         select_finalists=args.finalists,
         select_final_episodes=args.final_episodes,
+        select_slice_fraction=args.slice_fraction,
     )
     task = config.resolve_task()
     meta = json.loads((args.run / "dataset" / "dataset.json").read_text())["meta"]

@@ -222,6 +222,10 @@ class TrainConfig:
     more starts and are ranked on all their episodes (0 = one stage)."""
     select_final_episodes: int = 0
     """Episodes of that second stage per finalist."""
+    select_slice_fraction: float = 0.0
+    """Share of the selection's starts (both stages) drawn on the evaluation grid's slice of X0 instead of over all
+    of X0 (``seagul_learn.closed_loop.sample_grid_slice``: the acrobot's grid starts at rest); random draws, never
+    the grid's points."""
     select_jit: bool = True
     """Compile the MPC of the ``refit_candidates`` selection (False: interpreted, for tests)."""
     snapshots: tuple[int, ...] = ()
@@ -317,6 +321,8 @@ class TrainConfig:
                 "select_episodes must be >= 1 and select_finalists, select_final_episodes >= 0, got "
                 f"{self.select_episodes}, {self.select_finalists}, {self.select_final_episodes}"
             )
+        if not 0.0 <= self.select_slice_fraction <= 1.0:
+            raise ValueError(f"select_slice_fraction must be in [0, 1], got {self.select_slice_fraction}")
         if self.cl_collect_refit and not self.refit_steps:
             raise ValueError("cl_collect_refit needs refit_steps > 0 (the collecting network is a refit)")
         if self.cl_keep_best and (self.sampler != "closed-loop" or self.refit_steps):
@@ -1031,6 +1037,7 @@ def refit_and_select(
         trust_region=config.cl_trust_region,
         jit=config.select_jit,
         progress=config.progress,
+        slice_fraction=config.select_slice_fraction,
     )
     info = {**chosen.as_dict(), "wall_s": round(time.perf_counter() - start, 1), "candidates": config.refit_candidates}
     atomic_write_text(out / "network_selection.json", json.dumps(info, indent=1) + "\n")

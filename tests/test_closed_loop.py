@@ -493,6 +493,8 @@ def test_refit_candidates_deploys_the_selected_members(tmp_path):
     task = make_task("acrobot")
     with pytest.raises(ValueError, match="refit_candidates"):
         _cl_config(tmp_path, refit_steps=20, refit_ensemble=2, refit_candidates=2)
+    with pytest.raises(ValueError, match="select_slice_fraction"):
+        _cl_config(tmp_path, refit_steps=20, refit_ensemble=2, refit_candidates=3, select_slice_fraction=-0.1)
     cfg = _cl_config(
         tmp_path,
         refit_steps=20,
@@ -517,6 +519,7 @@ def test_refit_candidates_deploys_the_selected_members(tmp_path):
     x0, t0 = task.sample_x0(np.random.default_rng(1), 2), np.full(2, 3.0)
     np.testing.assert_allclose(again.predict(x0, t0), result.network.predict(x0, t0))
     assert len(info["scores"]) == 3 and info["candidates"] == 3 and len(info["members"]) == 2
+    assert info["slice_fraction"] == 0.0
     cands = ValueNetwork.load(run / "network_candidates.pt")
     deployed = ValueNetwork.load(run / "network.pt")
     assert isinstance(cands, ValueEnsemble) and isinstance(deployed, ValueEnsemble)
