@@ -317,14 +317,16 @@ def _parse_set(text: str) -> tuple[tuple[str, str], str, Any]:
     if not sep or len(parts) != 3 or parts[0] not in TASKS or parts[1] not in ALGOS:
         raise argparse.ArgumentTypeError(f"--set entries look like acrobot:SAC:net_arch=64,64, got {text!r}")
     task, algo, name = parts
-    settable = {f.name for f in fields(SB3Config)} - {"algo", "env_id", "seed", "total_timesteps"}
+    settable = {f.name: str(f.type) for f in fields(SB3Config)}
+    for fixed in ("algo", "env_id", "seed", "total_timesteps"):  # the benchmark's own axes
+        del settable[fixed]
     if name not in settable:
         raise argparse.ArgumentTypeError(f"--set: {name!r} is not a setting; choose from {sorted(settable)}")
     default = getattr(SB3Config(), name)
     try:
         if isinstance(default, tuple):
             parsed: Any = tuple(int(w) for w in value.split(",") if w)
-        elif isinstance(default, bool) or name == "normalize_reward":
+        elif settable[name].startswith("bool"):  # bool, or bool | None
             if value.lower() not in ("true", "false", "none"):
                 raise ValueError(value)
             parsed = {"true": True, "false": False, "none": None}[value.lower()]

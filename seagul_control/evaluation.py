@@ -124,6 +124,16 @@ class EpisodeResult:
 
 
 # ------------------------------------------------------------------------------------------------ starts
+def _grid_slice(task: Task) -> tuple[np.ndarray, tuple[int, int]]:
+    """The evaluation grid's slice of X0 (``task.profile.grid``): the state every grid start shares outside the
+    grid's two coordinates (X0's centre, or the profile's ``fixed`` values), and those two coordinates."""
+    grid = task.profile.grid
+    base = 0.5 * (np.asarray(task.x0_low, dtype=np.float64) + np.asarray(task.x0_high, dtype=np.float64))
+    for i, value in grid.fixed:
+        base[i] = value
+    return base, grid.resolved_coords(task)
+
+
 def start_grid(task: Task | str, n: int) -> tuple[np.ndarray, dict[str, Any]]:
     """``n x n`` starts and a description of the grid's axes (``task.profile.grid``).
 
@@ -135,11 +145,7 @@ def start_grid(task: Task | str, n: int) -> tuple[np.ndarray, dict[str, Any]]:
     if int(n) < 1:
         raise ValueError(f"grid size must be >= 1, got {n}")
     n = int(n)
-    grid = task.profile.grid
-    centre = 0.5 * (task.x0_low + task.x0_high)
-    for i, value in grid.fixed:
-        centre[i] = value
-    dims = grid.resolved_coords(task)
+    centre, dims = _grid_slice(task)
     axes = [np.linspace(task.x0_low[d], task.x0_high[d], n) if n > 1 else np.array([centre[d]]) for d in dims]
     starts = []
     for a in axes[0]:
@@ -153,6 +159,18 @@ def start_grid(task: Task | str, n: int) -> tuple[np.ndarray, dict[str, Any]]:
         "shape": [n, n],
     }
     return np.array(starts), info
+
+
+def sample_grid_slice(task: Task | str, n: int, rng: np.random.Generator) -> np.ndarray:
+    """``n`` starts drawn uniformly on the slice of X0 that :func:`start_grid` discretises: the grid's two
+    coordinates uniform over X0's range, every other one where the grid holds it (acrobot: at rest; glider: X0's
+    centre). Random draws from the grid's distribution, never its points."""
+    task = resolve_task(task)
+    base, dims = _grid_slice(task)
+    d = list(dims)
+    out = np.repeat(base[None, :], int(n), axis=0)
+    out[:, d] = rng.uniform(np.asarray(task.x0_low)[d], np.asarray(task.x0_high)[d], size=(int(n), 2))
+    return out
 
 
 #: Seed of the held-out starts every benchmark shares (never a training stream).

@@ -505,7 +505,8 @@ class MemberSelection:
     final_episodes: int = 0
     """Further episodes each finalist flew (stream ``[seed, 17]``)."""
     slice_fraction: float = 0.0
-    """Share of each stage's starts drawn on the evaluation grid's slice of X0 (:func:`sample_grid_slice`)."""
+    """Share of each stage's starts drawn on the evaluation grid's slice of X0
+    (:func:`seagul_control.evaluation.sample_grid_slice`)."""
 
     def as_dict(self) -> dict[str, Any]:
         """Plain dict (JSON)."""
@@ -520,24 +521,12 @@ class MemberSelection:
         }
 
 
-def sample_grid_slice(task: Task, n: int, rng: np.random.Generator) -> np.ndarray:
-    """``n`` starts drawn uniformly on the evaluation grid's slice of X0: the grid's two coordinates
-    (``task.profile.grid``) uniform over X0's range, every other one where the grid holds it (the acrobot: at rest;
-    the glider: X0's centre). Random draws from the distribution the grid discretises, never its points."""
-    grid = task.profile.grid
-    low, high = np.asarray(task.x0_low, dtype=float), np.asarray(task.x0_high, dtype=float)
-    base = 0.5 * (low + high)
-    for i, value in grid.fixed:
-        base[i] = value
-    dims = list(grid.resolved_coords(task))
-    out = np.repeat(base[None, :], int(n), axis=0)
-    out[:, dims] = rng.uniform(low[dims], high[dims], size=(int(n), 2))
-    return out
-
-
 def _selection_starts(task: Task, n: int, seed: int, stream: int, slice_stream: int, fraction: float) -> np.ndarray:
-    """``n`` selection starts: ``round(fraction * n)`` on the grid's slice (:func:`sample_grid_slice`, stream
+    """``n`` selection starts: ``round(fraction * n)`` on the grid's slice
+    (:func:`seagul_control.evaluation.sample_grid_slice`, stream
     ``[seed, slice_stream]``), the rest uniform over X0 (stream ``[seed, stream]``)."""
+    from seagul_control.evaluation import sample_grid_slice
+
     on_slice = round(float(fraction) * int(n))
     parts = [task.sample_x0(np.random.default_rng([int(seed), stream]), int(n) - on_slice)]
     if on_slice:
@@ -570,8 +559,9 @@ def select_members(
     episodes). Ties go to the first subset in lexicographic order. Model selection on training episodes by the
     metric that matters, at no NLP solve: refits of one buffer differ by tens of points of closed-loop success
     (docs/closed_loop.md, twelfth session). ``slice_fraction`` of each stage's starts are drawn on the evaluation
-    grid's slice of X0 instead (:func:`sample_grid_slice`, streams ``[seed, 18]`` and ``[seed, 19]``): the acrobot's
-    grid starts at rest, a 2-D slice that uniform draws over the 4-D X0 rarely come near.
+    grid's slice of X0 instead (``seagul_control.evaluation.sample_grid_slice``, streams ``[seed, 18]`` and
+    ``[seed, 19]``): the acrobot's grid starts at rest, a 2-D slice that uniform draws over the 4-D X0 rarely come
+    near.
     """
     import itertools
 

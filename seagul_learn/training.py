@@ -224,7 +224,7 @@ class TrainConfig:
     """Episodes of that second stage per finalist."""
     select_slice_fraction: float = 0.0
     """Share of the selection's starts (both stages) drawn on the evaluation grid's slice of X0 instead of over all
-    of X0 (``seagul_learn.closed_loop.sample_grid_slice``: the acrobot's grid starts at rest); random draws, never
+    of X0 (``seagul_control.evaluation.sample_grid_slice``: the acrobot's grid starts at rest); random draws, never
     the grid's points."""
     select_jit: bool = True
     """Compile the MPC of the ``refit_candidates`` selection (False: interpreted, for tests)."""

@@ -229,19 +229,15 @@ def test_bench_reuses_a_stored_run_only_for_the_same_config(tmp_path, monkeypatc
     assert not (run / "result.json").exists()
 
 
-def test_bench_update_of_one_algorithm_keeps_the_others_and_takes_settings_from_a_stored_sweep(
-    tmp_path, monkeypatch
-) -> None:
-    """``bench_rl_baselines --algos SAC --settings-from SWEEP --update FILE``: SAC trains with the sweep's best
-    setting and replaces its entry; the task's PPO entry, its sweep rows and the other task stay as they were."""
+def _bench_with_fake_runs(monkeypatch):
+    """``benchmarks.bench_rl_baselines`` with ``_run`` replaced by a stand-in that records each config and returns
+    a two-point curve, grid success 25 % and held-out 50 %; returns ``(bench, seen)``."""
     import importlib
-    import json
     from pathlib import Path
 
-    root = Path(__file__).resolve().parents[1]
-    monkeypatch.syspath_prepend(str(root))
+    monkeypatch.syspath_prepend(str(Path(__file__).resolve().parents[1]))
     bench = importlib.import_module("benchmarks.bench_rl_baselines")
-    seen = []
+    seen: list[SB3Config] = []
 
     def fake_run(config, out, n_grid=0, n_heldout=100):
         seen.append(config)
@@ -258,6 +254,17 @@ def test_bench_update_of_one_algorithm_keeps_the_others_and_takes_settings_from_
         }
 
     monkeypatch.setattr(bench, "_run", fake_run)
+    return bench, seen
+
+
+def test_bench_update_of_one_algorithm_keeps_the_others_and_takes_settings_from_a_stored_sweep(
+    tmp_path, monkeypatch
+) -> None:
+    """``bench_rl_baselines --algos SAC --settings-from SWEEP --update FILE``: SAC trains with the sweep's best
+    setting and replaces its entry; the task's PPO entry, its sweep rows and the other task stay as they were."""
+    from pathlib import Path
+
+    bench, seen = _bench_with_fake_runs(monkeypatch)
     sweep = tmp_path / "sweep.json"
     sweep.write_text(json.dumps({"acrobot": {"SAC": {"best": {"learning_rate": 3e-4, "net_arch": [32, 32]}}}}))
     result = tmp_path / "rl.json"
@@ -291,35 +298,14 @@ def test_bench_set_overrides_a_setting_per_task_and_algorithm_and_refuses_bad_on
     """``bench_rl_baselines --set acrobot:SAC:net_arch=64,64``: the seeds of that task and algorithm train with it
     (over the sweep's or the zoo's), the result records it, and unknown fields, fixed fields or bad values are
     refused by name."""
-    import importlib
-    import json
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[1]
-    monkeypatch.syspath_prepend(str(root))
-    bench = importlib.import_module("benchmarks.bench_rl_baselines")
-    seen = []
-
-    def fake_run(config, out, n_grid=0, n_heldout=100):
-        seen.append(config)
-        curve = [{"env_steps": 10, "wall_s": 1.0, "success_rate": 0.0, "mean_return": -5.0}]
-        stats = {"success_rate": 0.0, "mean_return": -1.0, "mean_final_distance": 3.0}
-        return {
-            "config": config.to_dict(),
-            "resolved": config.resolved(),
-            "env_steps": 10,
-            "train_wall_s": 1.0,
-            "curve": curve,
-            "model": str(out / "model.zip"),
-            "grid": stats,
-            "heldout": stats,
-        }
-
-    monkeypatch.setattr(bench, "_run", fake_run)
+    bench, seen = _bench_with_fake_runs(monkeypatch)
     args = ["--quick", "--tasks", "acrobot", "--algos", "SAC", "--seeds", "1", "--workers", "1"]
     args += ["--out", str(tmp_path / "w"), "--set", "acrobot:SAC:net_arch=64,64"]
     args += ["--set", "acrobot:SAC:normalize_reward=true", "--set", "glider:SAC:gamma=0.9"]
+    args += ["--update", str(tmp_path / "rl.json")]
     assert bench.main(args) == 0
+    recorded = json.loads((tmp_path / "rl.json").read_text())["acrobot"]["sac"]["settings_set"]
+    assert recorded == {"net_arch": [64, 64], "normalize_reward": True}
     (config,) = seen
     assert config.net_arch == (64, 64) and config.normalize_reward is True and config.gamma == 0.98
     assert config.resolved()["net_arch"] == [64, 64]

@@ -461,8 +461,8 @@ def test_select_members_scores_every_subset_on_training_starts_and_keeps_the_bes
 def test_grid_slice_starts_lie_on_the_evaluation_grids_slice_of_x0():
     """``sample_grid_slice``: the grid's two coordinates uniform over X0's range (spread over it), the others where
     the grid holds them (acrobot at rest, glider at X0's centre); seeded draws repeat."""
-    from seagul_control.evaluation import start_grid
-    from seagul_learn.closed_loop import _selection_starts, sample_grid_slice
+    from seagul_control.evaluation import sample_grid_slice, start_grid
+    from seagul_learn.closed_loop import _selection_starts
 
     for name in ("acrobot", "glider"):
         task = make_task(name)
