@@ -222,11 +222,15 @@ def _learner_view(env: Any, scale: float, terminal_at_horizon: bool, miss_penalt
         """The last reward of an episode also pays for missing the task's success rule (its final state's
         ``SuccessRule.violation``)."""
 
+        def __init__(self, inner: Any) -> None:
+            super().__init__(inner)
+            self.task = inner.unwrapped.task  # the seagul envs simulate one Task
+            self.rule = self.task.profile.success
+
         def step(self, action: Any) -> Any:
             obs, reward, terminated, truncated, info = self.env.step(action)
             if terminated or truncated:
-                task = self.env.unwrapped.task
-                reward = float(reward) - miss_penalty * task.profile.success.violation(task, info["state"])
+                reward = float(reward) - miss_penalty * self.rule.violation(self.task, info["state"])
             return obs, reward, terminated, truncated, info
 
     class HorizonEndTerminates(gym.Wrapper):
