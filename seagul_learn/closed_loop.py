@@ -72,6 +72,7 @@ _STREAM_SELECT_STARTS = 16
 _STREAM_SELECT_FINAL = 17
 _STREAM_SELECT_SLICE = 18
 _STREAM_SELECT_FINAL_SLICE = 19
+_STREAM_EPISODE_SLICE = 20
 
 
 @dataclass(frozen=True)
@@ -109,6 +110,11 @@ class ClosedLoopOptions:
     instead of the planned terminal states (DAgger's labels: the optimal continuation from where the learned
     controller actually went, whose first knots are the terminal states the planner should have chosen). States of
     episodes that failed come first; fixed-step tasks only."""
+    slice_fraction: float = 0.0
+    """Share of each round's episode starts drawn on the evaluation grid's slice of X0
+    (:func:`seagul_control.evaluation.sample_grid_slice`: the acrobot at rest), random draws, never the grid's points.
+    Uniform draws over the 4-D X0 almost never start at rest, where the grid's starts are. 0 draws exactly the
+    starts drawn before the option existed."""
 
     def __post_init__(self) -> None:
         if self.episodes < 1:
@@ -133,6 +139,8 @@ class ClosedLoopOptions:
             raise ValueError(f"closed-loop uniform_solves must be >= 0, got {self.uniform_solves}")
         if not 0.0 <= self.visited_fraction <= 1.0:
             raise ValueError(f"closed-loop visited_fraction must be in [0, 1], got {self.visited_fraction}")
+        if not 0.0 <= self.slice_fraction <= 1.0:
+            raise ValueError(f"closed-loop slice_fraction must be in [0, 1], got {self.slice_fraction}")
 
 
 @dataclass
@@ -345,9 +353,18 @@ class ClosedLoopSampler:
         return mpc
 
     def episode_starts(self) -> np.ndarray:
-        """This round's training starts (uniform over X0; their own random stream)."""
+        """This round's training starts: uniform over X0 (their own random stream), ``slice_fraction`` of them on
+        the grid's slice instead (another stream), those last."""
+        from seagul_control.evaluation import sample_grid_slice
+
+        n = self.options.episodes
+        on_slice = round(self.options.slice_fraction * n)
         rng = np.random.default_rng([self.seed, _STREAM_EPISODE_STARTS, self.round])
-        return self.task.sample_x0(rng, self.options.episodes)
+        starts = self.task.sample_x0(rng, n - on_slice)
+        if not on_slice:
+            return starts
+        rng_slice = np.random.default_rng([self.seed, _STREAM_EPISODE_SLICE, self.round])
+        return np.vstack([starts, sample_grid_slice(self.task, on_slice, rng_slice)])
 
     def episode_robots(self) -> np.ndarray | None:
         """This round's simulated robots, one per episode (uniform over Theta; their own stream), or None."""

@@ -176,6 +176,9 @@ class TrainConfig:
     """Closed-loop: share of each round's tail solves started from states the collecting episodes visited (states
     of failed episodes first) rather than from the planner's queries: the optimal continuation from where the
     learned controller went, DAgger's labels (fixed-step tasks)."""
+    cl_slice_fraction: float = 0.0
+    """Closed-loop: share of each round's episode starts drawn on the evaluation grid's slice of X0 (the acrobot at
+    rest; random draws, never the grid's points) instead of uniformly over X0."""
     cl_collect_refit: bool = False
     """Closed-loop: each round after the ``"lqr"`` warm-up rounds collects with a refit of the buffer so far
     (``refit_steps`` Adam steps, as the final refit: the network that would be deployed if training stopped there)
@@ -366,6 +369,7 @@ class TrainConfig:
             uniform_solves=self.cl_uniform_solves,
             jit=self.cl_jit,
             visited_fraction=self.cl_visited_fraction,
+            slice_fraction=self.cl_slice_fraction,
         )
 
     def adversarial_options(self) -> AdversarialOptions:

@@ -527,3 +527,36 @@ def test_refit_candidates_deploys_the_selected_members(tmp_path):
     for k, i in enumerate(info["members"]):
         np.testing.assert_allclose(deployed.members[k].predict(x, tau), cands.members[i].predict(x, tau))
     np.testing.assert_allclose(result.network.predict(x, tau), deployed.predict(x, tau))
+
+
+def test_slice_fraction_starts_that_share_of_each_rounds_episodes_at_rest():
+    """``cl_slice_fraction``: that share of a round's episode starts lies on the grid's slice of X0 (the acrobot at
+    rest, inside X0's angle box, never the grid's points), the rest are exactly the uniform starts drawn without the
+    option; each round draws new ones, reproducibly; outside [0, 1] is refused."""
+    from seagul_control.evaluation import start_grid
+    from seagul_learn.closed_loop import ClosedLoopSampler
+    from seagul_learn.samplers import StartPool
+
+    task = make_task("acrobot")
+    with pytest.raises(ValueError, match="slice_fraction"):
+        ClosedLoopOptions(slice_fraction=-0.1)
+    assert TrainConfig(task="acrobot", cl_slice_fraction=0.25).closed_loop_options().slice_fraction == 0.25
+    pool = StartPool(np.zeros((1, task.nx)), np.zeros(1), np.zeros(1, dtype=int))
+
+    def starts(fraction, round_index, seed=3):
+        sampler = ClosedLoopSampler(task, pool, ClosedLoopOptions(episodes=8, slice_fraction=fraction), seed=seed)
+        sampler.round = round_index
+        return sampler.episode_starts()
+
+    plain, half = starts(0.0, 2), starts(0.5, 2)
+    assert half.shape == plain.shape == (8, task.nx)
+    np.testing.assert_array_equal(half[:4], plain[:4])  # the uniform share: the first draws of the same stream
+    rest = half[4:]
+    np.testing.assert_array_equal(rest[:, 2:], 0.0)  # at rest
+    assert np.all(rest[:, :2] >= task.x0_low[:2]) and np.all(rest[:, :2] <= task.x0_high[:2])
+    assert np.abs(plain[:, 2:]).min() > 0  # uniform draws over X0 are never at rest
+    grid, _ = start_grid(task, 20)
+    assert not any(np.any(np.all(np.isclose(grid, s), axis=1)) for s in rest)
+    np.testing.assert_array_equal(half, starts(0.5, 2))
+    assert not np.array_equal(rest, starts(0.5, 3)[4:])
+    assert starts(1.0, 0).shape == (8, task.nx) and np.all(starts(1.0, 0)[:, 2:] == 0.0)
