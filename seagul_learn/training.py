@@ -158,7 +158,8 @@ class TrainConfig:
     """Closed-loop: lookahead steps of the collecting MPC (0 = the task's default, as deployed)."""
     cl_trust_region: str = "lqr"
     """Closed-loop: guard of the collecting MPC after the warm-up rounds; collect with the guard you deploy
-    (``LimitedLookaheadMPC``'s default is ``"lqr"``)."""
+    (``LimitedLookaheadMPC``'s default is the task's ``profile.mpc_trust_region``; the recipes collect with
+    ``"none"``)."""
     cl_warmup_rounds: int = 1
     """Closed-loop: first rounds collect with the ``"lqr"``-guarded MPC (teachable queries)."""
     cl_selection: str = "farthest"
@@ -410,6 +411,24 @@ class TrainConfig:
         if self.solver_options is not None:
             out["solver_options"] = dict(self.solver_options)
         return out
+
+    @classmethod
+    def recipe(cls, task: str | Task, **overrides: Any) -> TrainConfig:
+        """The task's measured best settings (``task.profile.train_recipe``), then ``overrides``; what ``seagul
+        train`` uses unless ``--recipe paper``. ``TrainConfig(task=...)`` alone keeps the paper's settings
+        (adversarial sampler, 1 x 32 tanh, 100 solves). A task without a recipe gives the dataclass defaults.
+
+        Raises:
+            ValueError: the recipe or ``overrides`` name a field :class:`TrainConfig` does not have.
+        """
+        resolved = resolve_task(task)
+        known = {f.name for f in fields(cls)}
+        base = dict(resolved.profile.train_recipe)
+        for where, names in (("task.profile.train_recipe", base), ("overrides", overrides)):
+            unknown = sorted(set(names) - known)
+            if unknown:
+                raise ValueError(f"TrainConfig.recipe({resolved.name!r}): {where} names unknown fields {unknown}")
+        return cls(**{**base, **overrides, "task": task})
 
     @classmethod
     def from_dict(cls, data: dict[str, Any], task: Task | None = None) -> TrainConfig:

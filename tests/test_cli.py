@@ -83,7 +83,7 @@ def test_train_end_to_end_and_resume_errors(tmp_path, toy_solver, capsys):
     argv = ["train", "--task", "acrobot", "--sampler", "adversarial", "--budget", "6", "--seed", "3",
             "--out", str(tmp_path / "run"), "--solves-per-round", "3", "--train-steps-per-round", "5",
             "--pretrain-solves", "3", "--pretrain-steps", "5", "--cache-dir", str(tmp_path / "cache"),
-            "--no-progress", "--sobolev", "0.5"]  # fmt: skip
+            "--no-progress", "--sobolev", "0.5", "--recipe", "paper"]  # fmt: skip
     assert main(argv) == 0
     lines = capsys.readouterr().out.strip().splitlines()
     assert lines[-1] == str(tmp_path / "run") and "6 solves" in lines[-2]

@@ -64,9 +64,38 @@ def test_every_train_config_field_is_an_option():
         assert option_name(name) in parser._option_string_actions
 
 
-def test_defaults_are_the_dataclass_defaults():
-    assert _train("--task", "acrobot") == TrainConfig(task="acrobot")
-    assert _train("--task", "glider") == TrainConfig(task="glider")
+def test_defaults_are_the_tasks_recipe_or_with_recipe_paper_the_dataclass_defaults():
+    """Options not given take the task's measured best settings (``TrainConfig.recipe``), or the dataclass's (the
+    paper's) with ``--recipe paper``; options given win over either, also when they equal a dataclass default."""
+    for task in ("acrobot", "glider"):
+        assert _train("--task", task) == TrainConfig.recipe(task)
+        assert _train("--task", task, "--recipe", "paper") == TrainConfig(task=task)
+    recipe = TrainConfig.recipe("acrobot")
+    assert recipe.sampler == "closed-loop" and recipe.budget == 2000 and recipe.hidden == (64, 64)
+    given = _train("--task", "acrobot", "--budget", "100", "--hidden", "32", "--sampler", "adversarial")
+    assert (given.budget, given.hidden, given.sampler) == (100, (32,), "adversarial")
+    assert given.cl_slice_fraction == recipe.cl_slice_fraction == 0.5  # the rest from the recipe
+    assert _train("--task", "acrobot", "--no-cl-collect-refit").cl_collect_refit is False  # a boolean given wins
+    with pytest.raises(SystemExit):
+        _train("--task", "acrobot", "--recipe", "best")
+
+
+def test_a_task_recipe_names_train_config_fields_only():
+    """``TrainConfig.recipe``: a task without a recipe gives the dataclass defaults; a recipe or an override with
+    a field TrainConfig does not have is an error naming it."""
+    import dataclasses as dc
+
+    from seagul_envs import make_task
+
+    task = make_task("acrobot")
+    plain = dc.replace(task, profile=dc.replace(task.profile, train_recipe={}))
+    assert TrainConfig.recipe(plain) == TrainConfig(task=plain)
+    typo = dc.replace(task, profile=dc.replace(task.profile, train_recipe={"budjet": 5}))
+    with pytest.raises(ValueError, match=r"train_recipe names unknown fields \['budjet'\]"):
+        TrainConfig.recipe(typo)
+    with pytest.raises(ValueError, match=r"overrides names unknown fields \['budjet'\]"):
+        TrainConfig.recipe("acrobot", budjet=5)
+    assert TrainConfig.recipe("acrobot", budget=10).budget == 10
 
 
 def test_parsed_options_give_the_train_config():
@@ -75,7 +104,7 @@ def test_parsed_options_give_the_train_config():
         "--no-validate", "--torch-threads", "2", "--sobolev-weight", "0.25", "--snapshots", "10,20", "--budget", "20",
         "--solver-options", '{"max_iter": 5}', "--no-cl-jit", "--cl-selection", "spread", "--cache-dir", "cache",
         "--sampler", "closed-loop", "--ensemble", "3", "--adv-optimizer", "adam", "--lr", "0.01", "--seed", "-4",
-        "--no-progress", "--workers", "2", "--backend", "ray",
+        "--no-progress", "--workers", "2", "--backend", "ray", "--recipe", "paper",
     )  # fmt: skip
     expected = TrainConfig(
         task="glider",
@@ -158,7 +187,9 @@ def test_old_train_flags_still_exist():
     ],
 )  # fmt: skip
 def test_old_train_spellings_parse(argv, changes):
-    assert _train("--task", "acrobot", *argv) == dataclasses.replace(TrainConfig(task="acrobot"), **changes)
+    assert _train("--task", "acrobot", "--recipe", "paper", *argv) == dataclasses.replace(
+        TrainConfig(task="acrobot"), **changes
+    )
 
 
 def test_out_and_resume_are_not_config_fields():

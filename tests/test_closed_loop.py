@@ -560,3 +560,19 @@ def test_slice_fraction_starts_that_share_of_each_rounds_episodes_at_rest():
     np.testing.assert_array_equal(half, starts(0.5, 2))
     assert not np.array_equal(rest, starts(0.5, 3)[4:])
     assert starts(1.0, 0).shape == (8, task.nx) and np.all(starts(1.0, 0)[:, 2:] == 0.0)
+
+
+@pytest.mark.parametrize("task_name", ["acrobot", "glider"])
+def test_the_tasks_recipe_is_what_the_benchmark_ships(monkeypatch, task_name):
+    """``TrainConfig.recipe(task)`` (``seagul train``'s default) trains exactly what ``bench_closed_loop.py``
+    measured and ships for the task (its full run: the largest budget, the shipped method's settings)."""
+    import importlib
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.syspath_prepend(str(root / "benchmarks"))
+    bench_mod = importlib.import_module("bench_closed_loop")
+    bench = bench_mod.BenchConfig.for_task(task_name, quick=False)
+    shipped = {**bench_mod.method_config(bench, bench_mod.SHIPPED), "budget": max(bench.budgets)}
+    assert TrainConfig.recipe(task_name) == TrainConfig(**shipped)
+    assert TrainConfig.recipe(task_name) != TrainConfig(task=task_name)  # not the paper's defaults

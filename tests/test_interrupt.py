@@ -45,7 +45,7 @@ def _argv(out: Path, cache: Path, resume: bool = False) -> list[str]:
     args = [sys.executable, "-m", "seagul_learn.cli", "train", "--task", "acrobot", "--sampler", "adversarial",
             "--budget", str(BUDGET), "--solves-per-round", "5", "--train-steps-per-round", "50",
             "--pretrain-solves", str(PRETRAIN), "--pretrain-steps", "20", "--adv-max-steps", "3", "--seed", "3",
-            "--out", str(out), "--cache-dir", str(cache), "--no-progress"]  # fmt: skip
+            "--out", str(out), "--cache-dir", str(cache), "--no-progress", "--recipe", "paper"]  # fmt: skip
     return [*args, "--resume"] if resume else args
 
 

@@ -279,12 +279,19 @@ class TaskProfile:
     presets: Mapping[str, Mapping[str, Any]] = field(default_factory=_default_presets)
     """``seagul reproduce`` presets: name -> :class:`~seagul_learn.experiment.Preset` field values (plain data, so
     the task module needs no import of ``seagul_learn``). Default :data:`DEFAULT_PRESETS`."""
+    train_recipe: Mapping[str, Any] = field(default_factory=dict)
+    """The measured best training settings of this task: :class:`~seagul_learn.training.TrainConfig` field -> value
+    (plain data, like :attr:`presets`), what ``TrainConfig.recipe(task)`` and ``seagul train`` start from. Empty:
+    the dataclass's defaults (the paper's settings)."""
     env_id: str | None = None
     """Gymnasium id of the system's own env (the built-ins'); None: ``seagul_envs.make_env`` gives a ``TaskEnv``.
     Episodes always run in ``make_env(task)``, which makes this id with the task itself (so a variant is simulated
     as given)."""
     mpc_horizon: int | None = None
     """Default lookahead steps of the limited-lookahead MPC (None: about 250 ms, ``round(0.25 / control_period)``)."""
+    mpc_trust_region: str = "lqr"
+    """Default guard of the limited-lookahead MPC's learned terminal cost (``"lqr"``, ``"box"`` or ``"none"``;
+    ``seagul_control.mpc``): ``"lqr"`` until a task's learned values are measured to work on their own."""
     mpc_goal_blend: float = 0.0
     """Default ``goal_blend`` of the limited-lookahead MPC (value units; 0 = off): below about this value of ``l_f``
     the task's terminal quadratic is the value (equilibrium goals only; docs/closed_loop.md)."""
@@ -304,6 +311,7 @@ class TaskProfile:
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "presets", {str(k): dict(v) for k, v in dict(self.presets).items()})
+        object.__setattr__(self, "train_recipe", {str(k): v for k, v in dict(self.train_recipe).items()})
         for name in ("lqr_Q", "lqr_R"):
             value = getattr(self, name)
             if value is not None:
@@ -412,6 +420,8 @@ class TaskProfile:
                 out.append(f"profile.grid.points must be >= 1, got {self.grid.points}")
             if self.grid.coords is None and nx < 2:
                 out.append("profile.grid.coords: a task with one state coordinate needs an explicit grid")
+        if self.mpc_trust_region not in ("lqr", "box", "none"):
+            out.append(f"profile.mpc_trust_region must be 'lqr', 'box' or 'none', got {self.mpc_trust_region!r}")
         if self.heatmap_metric not in ("final_distance", "cost"):
             out.append(f"profile.heatmap_metric must be 'final_distance' or 'cost', got {self.heatmap_metric!r}")
         if self.trajectory_plot is not None:

@@ -38,7 +38,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--horizon", type=positive_int, default=None, help="MPC steps (default: the task's; acrobot 5, glider 10)"
     )
     parser.add_argument(
-        "--trust-region", choices=("lqr", "box", "none"), default="lqr", help="guard of the learned terminal cost"
+        "--trust-region",
+        choices=("lqr", "box", "none"),
+        default=None,
+        help="guard of the learned terminal cost (default: the task's profile.mpc_trust_region; acrobot and glider: "
+        "none)",
     )
     parser.add_argument(
         "--goal-blend",

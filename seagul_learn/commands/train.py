@@ -5,6 +5,12 @@ one ``--field-name`` per field, typed by its annotation, defaulting to its defau
 field needs no edit here. :func:`train_options` only adds validating parsers (whose errors name the accepted range),
 choices and the historical ``--sobolev`` spelling of ``--sobolev-weight``. ``--no-progress`` is the ``progress``
 field's negative form. ``--out`` and ``--resume`` are not config fields.
+
+``--recipe`` chooses what the options that are not given take: ``task`` (default) the task's measured best
+settings (``task.profile.train_recipe``, :meth:`~seagul_learn.training.TrainConfig.recipe`; the acrobot's and the
+glider's are the closed-loop recipes of docs/closed_loop.md), ``paper`` the dataclass defaults (the paper's
+settings: adversarial sampler, 1 x 32 tanh, 100 solves). Options given always win. The defaults the help shows are
+the dataclass's.
 """
 
 from __future__ import annotations
@@ -51,6 +57,12 @@ def budgets(value: str) -> tuple[int, ...]:
 
 json_object = json_value(dict)
 """A JSON object (solver options)."""
+
+RECIPES = ("task", "paper")
+"""What ``--recipe`` accepts (module docstring)."""
+
+_NOT_GIVEN: Any = type("NotGiven", (), {"__repr__": lambda self: "<not given>"})()
+"""The parsed value of a config option the command line did not give (it takes the recipe's value)."""
 
 
 def train_options() -> dict[str, Option]:
@@ -111,17 +123,40 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     run_group = parser.add_argument_group("run directory")
     run_group.add_argument("--out", required=True, help="run directory (created; must be new unless --resume)")
     run_group.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
-    config_group = parser.add_argument_group(
-        "training configuration", "one option per TrainConfig field (seagul_learn.training)"
+    run_group.add_argument(
+        "--recipe",
+        choices=RECIPES,
+        default="task",
+        help="what the options not given take: 'task' the task's measured best settings (task.profile.train_recipe; "
+        "the acrobot's: the closed-loop sampler, 2,000 solves, 2 x 64), 'paper' the defaults shown below (the paper's "
+        "settings) (default: task)",
     )
-    add_dataclass_arguments(config_group, TrainConfig, train_options())
+    config_group = parser.add_argument_group(
+        "training configuration",
+        "one option per TrainConfig field (seagul_learn.training); the defaults shown are the dataclass's (--recipe "
+        "paper), an option not given takes the task's recipe value (--recipe task)",
+    )
+    actions = add_dataclass_arguments(config_group, TrainConfig, train_options())
+    # Options the command line does not give are told apart from those it gives with a default's value.
+    config_group.set_defaults(**{a.dest: _NOT_GIVEN for a in actions if not a.required})
 
 
 def config_from_args(args: argparse.Namespace) -> Any:
-    """The :class:`~seagul_learn.training.TrainConfig` of parsed arguments."""
+    """The :class:`~seagul_learn.training.TrainConfig` of parsed arguments: the options given, the rest from the
+    task's recipe (``--recipe task``) or the dataclass defaults (``--recipe paper``)."""
+    import dataclasses
+
     from seagul_learn.training import TrainConfig
 
-    return dataclass_from_args(TrainConfig, args)
+    given = {
+        f.name: getattr(args, f.name)
+        for f in dataclasses.fields(TrainConfig)
+        if hasattr(args, f.name) and getattr(args, f.name) is not _NOT_GIVEN
+    }
+    if getattr(args, "recipe", "task") == "paper":
+        return dataclass_from_args(TrainConfig, argparse.Namespace(**given))
+    task = given.pop("task")
+    return TrainConfig.recipe(task, **given)
 
 
 def run(args: argparse.Namespace) -> int:
@@ -129,10 +164,11 @@ def run(args: argparse.Namespace) -> int:
     from seagul_envs.tasks import task_label
     from seagul_learn.training import train
 
-    result = train(config_from_args(args), args.out, resume=args.resume)
+    config = config_from_args(args)
+    result = train(config, args.out, resume=args.resume)
     last = result.metrics[-1]
     print(
-        f"{task_label(args.task)} {args.sampler}: {result.num_solves} solves ({result.num_failures} failed), "
+        f"{task_label(args.task)} {config.sampler}: {result.num_solves} solves ({result.num_failures} failed), "
         f"{last.train_steps} training steps, validation mse_initial={last.mse_initial:.4g} "
         f"mse_all_knots={last.mse_all_knots:.4g}"
     )
