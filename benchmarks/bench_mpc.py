@@ -14,8 +14,8 @@ under ``--work-dir`` so a second run reuses it. Then, through the Gymnasium envs
 
 Step times are the solver wall times of every MPC step inside those closed loops, measured in one process
 (``workers=1``) for the timed MPC so that parallel episodes do not share its cores; the slow references run on
-``--workers`` processes. The MPC with each trust-region guard (``lqr`` = default, ``box``, ``none``) is reported
-under ``"trust_region"``; only the default one is JIT-compiled (the other two run interpreted: their step times are
+``--workers`` processes. The MPC with each trust-region guard (``lqr``, ``box``, ``none``) is reported
+under ``"trust_region"``; only the ``lqr`` one is JIT-compiled (the other two run interpreted: their step times are
 not comparable, their success rates are). The last line of stdout is one JSON object::
 
     {"acrobot": {"median_ms", "p95_ms", "success_rate", "lqr_success_rate", "full_horizon_success_rate", ...},

@@ -102,7 +102,7 @@ class ParamBenchConfig:
     """Closed-loop episodes per network: held-out X0 starts, each on its own robot from Theta."""
     fd_points: int = 2
     trust_region: str = "lqr"
-    """The deployed MPC's guard (``LimitedLookaheadMPC``'s default)."""
+    """The deployed MPC's guard (passed explicitly: these small networks are measured with ``"lqr"``)."""
     jit: bool = True
     solver: str = "ipopt"
     """The evaluated MPCs' solver. IPOPT with a wall-time limit per step (``max_step_time``) rather than the deployed

@@ -73,7 +73,9 @@ def main(cfg: Config) -> None:
     print(f"trained on {trained.num_solves} solves: validation mse_initial {last.mse_initial:.3g}")
 
     # 3. The network as terminal cost of a limited-lookahead MPC, in a plain Gymnasium loop.
-    policy = LimitedLookaheadMPC(task, trained.network, horizon=cfg.horizon)
+    # A network of a few dozen solves sits on the task's quadratic terminal cost ("lqr"); the acrobot's default guard
+    # ("none") is for the shipped 2,000-solve networks (docs/closed_loop.md).
+    policy = LimitedLookaheadMPC(task, trained.network, horizon=cfg.horizon, trust_region="lqr")
     env = gym.make("SeagulAcrobot-v0")
     obs, info = env.reset(seed=cfg.seed)
     episode_return, done = 0.0, False

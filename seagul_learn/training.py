@@ -416,7 +416,9 @@ class TrainConfig:
     def recipe(cls, task: str | Task, **overrides: Any) -> TrainConfig:
         """The task's measured best settings (``task.profile.train_recipe``), then ``overrides``; what ``seagul
         train`` uses unless ``--recipe paper``. ``TrainConfig(task=...)`` alone keeps the paper's settings
-        (adversarial sampler, 1 x 32 tanh, 100 solves). A task without a recipe gives the dataclass defaults.
+        (adversarial sampler, 1 x 32 tanh, 100 solves). A task without a recipe gives the dataclass defaults, and so
+        does an override naming another sampler than the recipe's (a recipe's settings belong to its sampler: the
+        glider's ``cl_keep_best`` means nothing to the adversarial one).
 
         Raises:
             ValueError: the recipe or ``overrides`` name a field :class:`TrainConfig` does not have.
@@ -424,6 +426,8 @@ class TrainConfig:
         resolved = resolve_task(task)
         known = {f.name for f in fields(cls)}
         base = dict(resolved.profile.train_recipe)
+        if "sampler" in overrides and overrides["sampler"] != base.get("sampler", overrides["sampler"]):
+            base = {}
         for where, names in (("task.profile.train_recipe", base), ("overrides", overrides)):
             unknown = sorted(set(names) - known)
             if unknown:

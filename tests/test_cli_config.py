@@ -72,10 +72,14 @@ def test_defaults_are_the_tasks_recipe_or_with_recipe_paper_the_dataclass_defaul
         assert _train("--task", task, "--recipe", "paper") == TrainConfig(task=task)
     recipe = TrainConfig.recipe("acrobot")
     assert recipe.sampler == "closed-loop" and recipe.budget == 2000 and recipe.hidden == (64, 64)
-    given = _train("--task", "acrobot", "--budget", "100", "--hidden", "32", "--sampler", "adversarial")
-    assert (given.budget, given.hidden, given.sampler) == (100, (32,), "adversarial")
+    given = _train("--task", "acrobot", "--budget", "1500", "--hidden", "32", "--sampler", "closed-loop")
+    assert (given.budget, given.hidden, given.sampler) == (1500, (32,), "closed-loop")
     assert given.cl_slice_fraction == recipe.cl_slice_fraction == 0.5  # the rest from the recipe
     assert _train("--task", "acrobot", "--no-cl-collect-refit").cl_collect_refit is False  # a boolean given wins
+    # another sampler than the recipe's: the recipe (its settings belong to its sampler) does not apply
+    assert _train("--task", "glider", "--sampler", "adversarial") == TrainConfig(task="glider", sampler="adversarial")
+    with pytest.raises(ValueError, match="--recipe paper"):  # a clash with the recipe names the way out
+        _train("--task", "acrobot", "--refit-steps", "0")
     with pytest.raises(SystemExit):
         _train("--task", "acrobot", "--recipe", "best")
 

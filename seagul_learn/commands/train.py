@@ -128,8 +128,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=RECIPES,
         default="task",
         help="what the options not given take: 'task' the task's measured best settings (task.profile.train_recipe; "
-        "the acrobot's: the closed-loop sampler, 2,000 solves, 2 x 64), 'paper' the defaults shown below (the paper's "
-        "settings) (default: task)",
+        "the acrobot's: the closed-loop sampler, 2,000 solves, 2 x 64; ignored when --sampler names another sampler), "
+        "'paper' the defaults shown below (the paper's settings) (default: task)",
     )
     config_group = parser.add_argument_group(
         "training configuration",
@@ -156,7 +156,13 @@ def config_from_args(args: argparse.Namespace) -> Any:
     if getattr(args, "recipe", "task") == "paper":
         return dataclass_from_args(TrainConfig, argparse.Namespace(**given))
     task = given.pop("task")
-    return TrainConfig.recipe(task, **given)
+    try:
+        return TrainConfig.recipe(task, **given)
+    except ValueError as exc:
+        raise ValueError(
+            f"{exc} (the options not given come from the task's recipe, task.profile.train_recipe; --recipe paper "
+            "starts from the defaults shown by --help instead)"
+        ) from exc
 
 
 def run(args: argparse.Namespace) -> int:
