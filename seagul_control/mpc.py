@@ -683,7 +683,7 @@ class LimitedLookaheadMPC(_MPCBase):
         if isinstance(horizon, bool) or not isinstance(horizon, (int, np.integer)) or int(horizon) < 1:
             raise ValueError(f"{self.name}: horizon must be an integer >= 1 step, got {horizon!r}")
         if trust_region is None:
-            trust_region = getattr(task.profile, "mpc_trust_region", "lqr")
+            trust_region = task.profile.mpc_trust_region
         if trust_region not in ("box", "lqr", "none"):
             raise ValueError(f"{self.name}: trust_region must be 'box', 'lqr' or 'none', got {trust_region!r}")
         if not (np.isfinite(trust_weight) and trust_weight >= 0):

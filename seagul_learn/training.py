@@ -426,12 +426,12 @@ class TrainConfig:
         resolved = resolve_task(task)
         known = {f.name for f in fields(cls)}
         base = dict(resolved.profile.train_recipe)
-        if "sampler" in overrides and overrides["sampler"] != base.get("sampler", overrides["sampler"]):
-            base = {}
         for where, names in (("task.profile.train_recipe", base), ("overrides", overrides)):
             unknown = sorted(set(names) - known)
             if unknown:
                 raise ValueError(f"TrainConfig.recipe({resolved.name!r}): {where} names unknown fields {unknown}")
+        if "sampler" in overrides and overrides["sampler"] != base.get("sampler", overrides["sampler"]):
+            base = {}
         return cls(**{**base, **overrides, "task": task})
 
     @classmethod

@@ -95,8 +95,9 @@ def test_a_task_recipe_names_train_config_fields_only():
     plain = dc.replace(task, profile=dc.replace(task.profile, train_recipe={}))
     assert TrainConfig.recipe(plain) == TrainConfig(task=plain)
     typo = dc.replace(task, profile=dc.replace(task.profile, train_recipe={"budjet": 5}))
-    with pytest.raises(ValueError, match=r"train_recipe names unknown fields \['budjet'\]"):
-        TrainConfig.recipe(typo)
+    for sampler in ({}, {"sampler": "uniform"}):  # reported also when another sampler sets the recipe aside
+        with pytest.raises(ValueError, match=r"train_recipe names unknown fields \['budjet'\]"):
+            TrainConfig.recipe(typo, **sampler)
     with pytest.raises(ValueError, match=r"overrides names unknown fields \['budjet'\]"):
         TrainConfig.recipe("acrobot", budjet=5)
     assert TrainConfig.recipe("acrobot", budget=10).budget == 10

@@ -22,7 +22,7 @@ import math
 import operator
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
 
@@ -289,7 +289,7 @@ class TaskProfile:
     as given)."""
     mpc_horizon: int | None = None
     """Default lookahead steps of the limited-lookahead MPC (None: about 250 ms, ``round(0.25 / control_period)``)."""
-    mpc_trust_region: str = "lqr"
+    mpc_trust_region: Literal["lqr", "box", "none"] = "lqr"
     """Default guard of the limited-lookahead MPC's learned terminal cost (``"lqr"``, ``"box"`` or ``"none"``;
     ``seagul_control.mpc``): ``"lqr"`` until a task's learned values are measured to work on their own."""
     mpc_goal_blend: float = 0.0

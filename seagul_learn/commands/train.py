@@ -28,7 +28,7 @@ from seagul_learn.commands._args import (
     positive_int,
     task_argument,
 )
-from seagul_learn.commands._config import Option, add_dataclass_arguments, dataclass_from_args, json_value
+from seagul_learn.commands._config import Option, add_dataclass_arguments, json_value
 
 
 def hidden_widths(value: str) -> tuple[int, ...]:
@@ -154,7 +154,7 @@ def config_from_args(args: argparse.Namespace) -> Any:
         if hasattr(args, f.name) and getattr(args, f.name) is not _NOT_GIVEN
     }
     if getattr(args, "recipe", "task") == "paper":
-        return dataclass_from_args(TrainConfig, argparse.Namespace(**given))
+        return TrainConfig(**given)
     task = given.pop("task")
     try:
         return TrainConfig.recipe(task, **given)
