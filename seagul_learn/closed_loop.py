@@ -83,8 +83,9 @@ class ClosedLoopOptions:
     """Closed-loop episodes per round (starts drawn uniformly from X0, nominal time to go)."""
     horizon: int | None = None
     """Lookahead steps of the collecting MPC (None: the task's default, as deployed)."""
-    trust_region: str = "lqr"
-    """Guard of the collecting (= deployed) MPC after the warm-up rounds."""
+    trust_region: Literal["lqr", "box", "none"] | None = None
+    """Guard of the collecting (= deployed) MPC after the warm-up rounds; None = the task's deployed default
+    (``profile.mpc_trust_region``, as ``LimitedLookaheadMPC`` resolves it)."""
     warmup_rounds: int = 1
     """Rounds at the start that collect with the ``"lqr"``-guarded MPC instead."""
     selection: Selection = "farthest"
@@ -121,7 +122,7 @@ class ClosedLoopOptions:
             raise ValueError(f"closed-loop episodes must be >= 1, got {self.episodes}")
         if self.horizon is not None and self.horizon < 1:
             raise ValueError(f"closed-loop horizon must be >= 1 step, got {self.horizon}")
-        if self.trust_region not in ("lqr", "box", "none"):
+        if self.trust_region not in ("lqr", "box", "none", None):
             raise ValueError(f"closed-loop trust_region must be 'lqr', 'box' or 'none', got {self.trust_region!r}")
         if self.warmup_rounds < 0:
             raise ValueError(f"closed-loop warmup_rounds must be >= 0, got {self.warmup_rounds}")
@@ -330,7 +331,7 @@ class ClosedLoopSampler:
         from seagul_control.evaluation import default_horizon
         from seagul_control.mpc import LimitedLookaheadMPC
 
-        guard = "lqr" if self.loop_rounds < self.options.warmup_rounds else self.options.trust_region
+        guard = "lqr" if self.loop_rounds < self.options.warmup_rounds else self.deployed_guard
         horizon = self.options.horizon or default_horizon(self.task)
         mpc = self._mpcs.get(guard)
         if mpc is None:
@@ -450,6 +451,12 @@ class ClosedLoopSampler:
         """Whether a round of ``num_solves`` runs the collecting MPC (False during the uniform warm-up)."""
         return self._split(num_solves)[1] > 0
 
+    @property
+    def deployed_guard(self) -> str:
+        """The guard of the deployed controller the sampler collects with after the warm-up rounds: ``trust_region``,
+        or the task's ``profile.mpc_trust_region`` when that is None."""
+        return self.options.trust_region or self.task.profile.mpc_trust_region
+
     def collects_deployed(self, num_solves: int) -> bool:
         """Whether a round of ``num_solves`` collects with the deployed guard (``trust_region``, after the
         ``"lqr"`` warm-up rounds)."""
@@ -561,24 +568,23 @@ def select_members(
     finalists: int = 0,
     final_episodes: int = 0,
     horizon: int | None = None,
-    trust_region: str = "none",
+    trust_region: Literal["lqr", "box", "none"] | None = None,
     jit: bool = True,
     progress: bool = False,
     slice_fraction: float = 0.0,
 ) -> MemberSelection:
     """The ``size`` members of ``candidates`` whose ensemble the deployed MPC flies best.
 
-    Every subset drives a ``LimitedLookaheadMPC(task, subset, horizon, trust_region=...)`` (one build,
-    re-parameterised per subset) in closed loop from the same ``episodes`` training starts drawn uniformly from X0
-    (stream ``[seed, 16]``; never an evaluation grid or held-out set). With ``finalists``, the best ``finalists``
-    subsets then fly ``final_episodes`` more starts (stream ``[seed, 17]``) and are ranked on all their episodes:
-    the first stage's scores of the top subsets differ by less than their binomial noise (~2 points at 100
-    episodes). Ties go to the first subset in lexicographic order. Model selection on training episodes by the
-    metric that matters, at no NLP solve: refits of one buffer differ by tens of points of closed-loop success
-    (docs/closed_loop.md, twelfth session). ``slice_fraction`` of each stage's starts are drawn on the evaluation
-    grid's slice of X0 instead (``seagul_control.evaluation.sample_grid_slice``, streams ``[seed, 18]`` and
-    ``[seed, 19]``): the acrobot's grid starts at rest, a 2-D slice that uniform draws over the 4-D X0 rarely come
-    near.
+    Every subset drives a ``LimitedLookaheadMPC(task, subset, horizon, trust_region=...)`` (None: the task's deployed
+    guard; one build, re-parameterised per subset) in closed loop from the same ``episodes`` training starts drawn
+    uniformly from X0 (stream ``[seed, 16]``; never an evaluation grid or held-out set). With ``finalists``, the best
+    ``finalists`` subsets then fly ``final_episodes`` more starts (stream ``[seed, 17]``) and are ranked on all their
+    episodes: the first stage's scores of the top subsets differ by less than their binomial noise (~2 points at 100
+    episodes). Ties go to the first subset in lexicographic order. Model selection on training episodes by the metric
+    that matters, at no NLP solve: refits of one buffer differ by tens of points of closed-loop success
+    (docs/closed_loop.md, twelfth session). ``slice_fraction`` of each stage's starts are drawn on the evaluation grid's
+    slice of X0 instead (``seagul_control.evaluation.sample_grid_slice``, streams ``[seed, 18]`` and ``[seed, 19]``):
+    the acrobot's grid starts at rest, a 2-D slice that uniform draws over the 4-D X0 rarely come near.
     """
     import itertools
 
@@ -608,7 +614,7 @@ def select_members(
                 task,
                 ensemble,
                 horizon or default_horizon(task),
-                trust_region=trust_region,  # type: ignore[arg-type]
+                trust_region=trust_region,
                 jit=jit,
             )
         else:

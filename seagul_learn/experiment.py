@@ -506,6 +506,8 @@ class Experiment:
             "seed": seed,
             "snapshots": p.budgets,
             "cl_horizon": p.mpc_horizon,
+            # The closed-loop method collects with the guard the experiment deploys ("lqr", evaluate_closed_loop).
+            "cl_trust_region": "lqr",
             "progress": False,
         }
         return TrainConfig(**{**base, **overrides})

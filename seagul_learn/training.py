@@ -63,7 +63,7 @@ import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 import torch
@@ -156,10 +156,10 @@ class TrainConfig:
     """Closed-loop: MPC episodes per round (training starts from X0, never the evaluation grid)."""
     cl_horizon: int = 0
     """Closed-loop: lookahead steps of the collecting MPC (0 = the task's default, as deployed)."""
-    cl_trust_region: str = "lqr"
-    """Closed-loop: guard of the collecting MPC after the warm-up rounds; collect with the guard you deploy
-    (``LimitedLookaheadMPC``'s default is the task's ``profile.mpc_trust_region``; the recipes collect with
-    ``"none"``)."""
+    cl_trust_region: Literal["lqr", "box", "none"] | None = None
+    """Closed-loop: guard of the collecting MPC after the warm-up rounds and of the member selection; None = the
+    guard the task deploys (``profile.mpc_trust_region``, ``LimitedLookaheadMPC``'s default), so the sampler
+    collects with the controller as it will run. Set it when you deploy another guard."""
     cl_warmup_rounds: int = 1
     """Closed-loop: first rounds collect with the ``"lqr"``-guarded MPC (teachable queries)."""
     cl_selection: str = "farthest"
@@ -1078,9 +1078,10 @@ def _keep_best(out: Path, config: TrainConfig, log: list[dict[str, Any]], collec
     """``cl_keep_best``: save ``collecting`` as ``network_best.pt`` when the round just logged is the best deployed
     collector so far (ties: the later). The best so far is recomputed from the log (resume-safe: a redone round
     rewrites the same file)."""
+    deployed = config.cl_trust_region or config.resolve_task().profile.mpc_trust_region
 
     def rate(entry: dict[str, Any]) -> float | None:
-        if entry.get("collector") != config.cl_trust_region or not entry.get("episodes"):
+        if entry.get("collector") != deployed or not entry.get("episodes"):
             return None
         return float(entry["episode_successes"]) / float(entry["episodes"])
 

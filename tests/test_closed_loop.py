@@ -562,6 +562,39 @@ def test_slice_fraction_starts_that_share_of_each_rounds_episodes_at_rest():
     assert starts(1.0, 0).shape == (8, task.nx) and np.all(starts(1.0, 0)[:, 2:] == 0.0)
 
 
+def test_the_collector_deploys_the_tasks_guard_unless_told_otherwise(tmp_path):
+    """``cl_trust_region=None`` (the default): after the warm-up the sampler collects, and ``cl_keep_best`` ranks,
+    with the guard the task deploys (``profile.mpc_trust_region``: the acrobot's "none", a new task's "lqr");
+    an explicit guard wins; the CLI spells it ``--cl-trust-region``."""
+    import dataclasses
+
+    from seagul_learn.closed_loop import ClosedLoopSampler
+    from seagul_learn.samplers import StartPool
+    from seagul_learn.training import _keep_best
+    from seagul_learn.value_network import ValueNetwork
+
+    acrobot = make_task("acrobot")
+    guarded = dataclasses.replace(acrobot, profile=dataclasses.replace(acrobot.profile, mpc_trust_region="lqr"))
+    pool = StartPool(np.zeros((1, acrobot.nx)), np.zeros(1), np.zeros(1, dtype=int))
+    assert TrainConfig().cl_trust_region is None and ClosedLoopOptions().trust_region is None
+    assert ClosedLoopSampler(acrobot, pool).deployed_guard == "none"
+    assert ClosedLoopSampler(guarded, pool).deployed_guard == "lqr"
+    assert ClosedLoopSampler(acrobot, pool, ClosedLoopOptions(trust_region="box")).deployed_guard == "box"
+    assert TrainConfig(task="acrobot", cl_trust_region="lqr").closed_loop_options().trust_region == "lqr"
+    # keep-best counts the rounds of the resolved guard only
+    log = [
+        {"round": 0, "collector": "lqr", "episodes": 4, "episode_successes": 4},
+        {"round": 1, "collector": "none", "episodes": 4, "episode_successes": 1},
+    ]
+    net = ValueNetwork(4, (4,), task_name="acrobot", seed=0)
+    for task, saved in ((acrobot, True), (guarded, False)):
+        out = tmp_path / task.profile.mpc_trust_region
+        out.mkdir()
+        config = _cl_config(tmp_path, task=task, cl_keep_best=True, cl_trust_region=None)
+        _keep_best(out, config, log, net, 100)
+        assert (out / "network_best.pt").is_file() is saved
+
+
 @pytest.mark.parametrize("task_name", ["acrobot", "glider"])
 def test_the_tasks_recipe_is_what_the_benchmark_ships(monkeypatch, task_name):
     """``TrainConfig.recipe(task)`` (``seagul train``'s default) trains exactly what ``bench_closed_loop.py``
