@@ -607,6 +607,7 @@ def aggregate_task(
     figure: Path | None = None,
     compare: dict[str, Path] | None = None,
     shipped_label: str | None = None,
+    title: str | None = None,
 ) -> dict[str, Any]:
     """The JSON block of :func:`run_task` rebuilt from stored per-seed evaluations without the training runs:
     ``eval_dir/b<B>/seed<N>.json`` per budget of ``bench.budgets`` (or ``eval_dir/seed<N>.json`` for one budget; a
@@ -615,7 +616,7 @@ def aggregate_task(
     process. Rows may carry the training records' fields (validation MSEs, solve time) and may be grid-only (no
     held-out rate or query error: NaN). ``figure``: also draw ``success_vs_solves`` there. ``compare``: other
     methods' stored evaluations (label -> folder of ``b<B>/seed<N>.json``, or of ``seed<N>.json`` at ``budget``),
-    summarised and drawn beside."""
+    summarised and drawn beside. ``title``: the figure's (default: task, horizon and seeds)."""
     seeds = list(bench.seed_list or range(bench.seeds))
     budgets = sorted(bench.budgets)
     table = _stored_rows(eval_dir, seeds, budgets)
@@ -639,7 +640,7 @@ def aggregate_task(
         tables[label] = _stored_rows(folder, seeds, None if by_budget else [budget])
     summary = summarize(bench, tables, full)
     if figure is not None:
-        title = f"{bench.task}: {bench.horizon}-step MPC, up to {len(seeds)} seeds (aggregated evaluations)"
+        title = title or f"{bench.task}: {bench.horizon}-step MPC, up to {len(seeds)} seeds (aggregated evaluations)"
         plot(summary, full, figure, title, {SHIPPED: shipped_label} if shipped_label else None)
     return {
         **block,
@@ -686,6 +687,7 @@ def main(argv: list[str] | None = None) -> int:
         help="--aggregate: another method's stored evaluations (DIR/b<B>/seed<N>.json), summarised and drawn beside",
     )
     parser.add_argument("--label", default=None, help="--aggregate: the shipped method's name in the figure")
+    parser.add_argument("--title", default=None, help="--aggregate: the figure's title")
     parser.add_argument(
         "--update",
         default=None,
@@ -730,6 +732,7 @@ def main(argv: list[str] | None = None) -> int:
                 figure,
                 {k: Path(v) for k, v in compare.items()},
                 args.label,
+                args.title,
             )
         else:
             result[task] = run_task(bench, out / task, args.workers, ship)

@@ -115,6 +115,12 @@ class TrajOptConfig:
     """The task's varying physical parameters (``task.parameters``) enter every solver as NLP parameters:
     :meth:`TrajectoryOptimizer.solve` takes ``theta`` (default the task's own values), one built solver serves every
     robot in ``Theta``, and ``SolveResult.grad_theta = dV/dtheta`` comes from the multipliers (CasADi's ``lam_p``)."""
+    max_solve_time: float | None = 30.0
+    """Wall-time limit of one attempt (s; None: none). IPOPT stops itself (``ipopt.max_wall_time``, unless
+    ``solver_options`` sets its own); a fatrop attempt runs in a killable child (``Transcription(max_solve_time=)``,
+    :mod:`seagul_control._watchdog`) and an overrun fails with status ``"timeout: ..."``, so the plan's next attempt
+    takes over. fatrop's regularisation loop has no upper bound: one full solve from an adversarial start looped for
+    50 minutes inside fatrop and stopped a 2,000-solve training run (sixteenth session; docs/closed_loop.md)."""
     codegen: bool = True
     """Compile the NLP functions to C (cached on disk) when a compiler is available."""
     solver_options: tuple[tuple[str, Any], ...] = ()
@@ -178,6 +184,8 @@ class TrajOptConfig:
             raise ValueError(f"unknown multi_start {self.multi_start!r}")
         if self.max_iter < 1 or self.tol <= 0:
             raise ValueError("max_iter must be >= 1 and tol > 0")
+        if self.max_solve_time is not None and not (math.isfinite(self.max_solve_time) and self.max_solve_time > 0):
+            raise ValueError(f"max_solve_time must be positive seconds or None, got {self.max_solve_time!r}")
         if self.soft_bounds_weight is not None and not (
             math.isfinite(self.soft_bounds_weight) and self.soft_bounds_weight > 0
         ):
@@ -257,6 +265,7 @@ class TrajectoryOptimizer:
                 codegen=self.config.codegen,
                 soft_bounds_weight=self.config.soft_bounds_weight,
                 model_params=self.config.model_params,
+                max_solve_time=self.config.max_solve_time,
             )
         return self._transcriptions[solver]
 

@@ -131,3 +131,28 @@ def test_ipopt_gets_its_own_wall_time_limit_and_bad_limits_are_named():
             Transcription(task, 5, step=0.1, solver="fatrop", max_solve_time=bad)
         with pytest.raises(ValueError, match="max_solve_time"):
             LimitedLookaheadMPC(task, None, horizon=5, jit=False, max_solve_time=bad)
+
+
+def test_a_trajectory_optimizer_attempt_that_never_returns_gives_way_to_the_next_attempt():
+    """A full solve's fatrop attempt that hangs (one looped for 50 minutes in a training run) is stopped at
+    ``TrajOptConfig.max_solve_time``; the plan's IPOPT attempt then solves it, with the same value as unguarded."""
+    from seagul_learn.trajopt import TrajectoryOptimizer
+
+    plan = ("fatrop:line", "ipopt:line")
+    reference = TrajectoryOptimizer("acrobot", plan=plan, max_solve_time=None).solve(X, 5.0)
+    opt = TrajectoryOptimizer("acrobot", plan=plan, max_solve_time=1.0)
+    fatrop = opt._transcription("fatrop")
+    assert fatrop.max_solve_time == 1.0 and fatrop._guard is not None
+    assert opt._transcription("ipopt").max_solve_time == 1.0 and opt._transcription("ipopt")._guard is None
+    server = _watchdog._server()
+    key = fatrop._guard._key
+    server.solvers[key] = _Hang()
+    server.stop()
+    start = time.perf_counter()
+    out = opt.solve(X, 5.0)
+    assert time.perf_counter() - start < 20.0
+    assert out.success and out.value == pytest.approx(reference.value, rel=1e-6)
+    assert fatrop._guard.timeouts == 1 and opt.counters.fallbacks == 1
+    server.solvers[key] = fatrop._solver
+    with pytest.raises(ValueError, match="max_solve_time"):
+        TrajectoryOptimizer("acrobot", max_solve_time=0.0)
