@@ -413,6 +413,11 @@ def summarize(bench: BenchConfig, table: dict[str, dict[int, list[dict[str, Any]
                 "query_error_mean_signed": _median(seeds, "query_error", "mean_signed"),
                 "fallback_steps_median": _median(seeds, "fallback_steps"),
             }
+            # A representative network (the seed closest to the median; ties: the lower seed), when rows name theirs.
+            named = [s for s in seeds if s.get("network")]
+            if named:
+                rep = min(named, key=lambda s: (abs(s["success_rate"] - np.median(succ)), s.get("seed", 0)))
+                rows[str(budget)].update(network=str(rep["network"]), network_seed=rep.get("seed"))
             if method != SHIPPED and SHIPPED in table and budget in table[SHIPPED]:
                 paired = {s.get("seed"): s["success_rate"] for s in table[SHIPPED][budget]}
                 if sorted(paired) == sorted(s.get("seed") for s in seeds):  # the same seeds: a paired test

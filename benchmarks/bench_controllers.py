@@ -5,7 +5,9 @@ Usage::
     .venv/bin/python benchmarks/bench_controllers.py [--task acrobot] [--latency-starts 20] [--quick] [--env ENV_ID]
 
 Rows: the learned limited-lookahead MPC of the closed-loop benchmark (``benchmarks/results/closed_loop.json``: its
-NLP solves, median success over seeds on the grid and the held-out starts, its step latency), LQR and the
+NLP solves, median success over seeds on the grid and the held-out starts, its step latency), the other learning
+methods of that file at the same budget (uniform, SEAGuL, with and without Sobolev; their representative networks'
+latency measured here), LQR and the
 full-horizon MPC (measured here on the same 20 x 20 grid and 100 held-out X0 starts, seed 20211231), and PPO/SAC
 from ``benchmarks/results/rl_baselines.json`` when that file exists (environment steps, training wall time, median
 success over seeds). A row whose source has not been run says so (``null`` in the JSON, "not run" in the table);
@@ -135,6 +137,42 @@ def learned_row(task_name: str) -> dict[str, Any]:
     }
 
 
+def sampler_rows(task_name: str, lat: np.ndarray | None = None) -> list[dict[str, Any]]:
+    """One learned-MPC row per other learning method of ``closed_loop.json`` (uniform, SEAGuL, each with and without
+    Sobolev training, ...) at the shipped method's budget: its median success over seeds, and with ``lat`` the step
+    latency of its representative network (``methods[m]["budgets"][b]["network"]``, the seed closest to the median)
+    measured here, deployed as the shipped one."""
+    path = RESULTS / "closed_loop.json"
+    block = json.loads(path.read_text()).get(task_name) if path.is_file() else None
+    if not block:
+        return []
+    budget = str(block["budget"])
+    rows = []
+    for method, entry in block.get("methods", {}).items():
+        row = entry.get("budgets", {}).get(budget)
+        if method == block["method"] or row is None:
+            continue
+        timing: dict[str, Any] = {"median_ms": None, "p95_ms": None}
+        network = ROOT / str(row.get("network", ""))
+        if lat is not None and row.get("network") and network.is_file():
+            spec = learned_spec({**block, "network": str(network.relative_to(ROOT))})
+            timing = latency(make_task(task_name), spec, lat)
+        rows.append(
+            {
+                "method": f"learned {block['horizon']}-step MPC ({method}, {len(row['success_per_seed'])} seeds)",
+                "nlp_solves": int(block["budget"]),
+                "env_steps": 0,
+                "train_wall_s": None,
+                "grid_success": row["success_median"],
+                "heldout_success": row["heldout_median"],
+                "median_ms": timing["median_ms"],
+                "p95_ms": timing["p95_ms"],
+                "source": "benchmarks/results/closed_loop.json (methods)",
+            }
+        )
+    return rows
+
+
 def rl_rows(task_name: str, lat: np.ndarray | None = None) -> list[dict[str, Any]]:
     """PPO/SAC rows from ``rl_baselines.json``; with ``lat`` (starts), the shipped model's ``predict`` latency is
     measured here, side by side with the other rows."""
@@ -248,7 +286,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.env:
         rows = rows_in_env(task, args.env, starts, n_grid, lat, args.quick)
     else:
-        rows = [learned_row(args.task), measured_row(task, "LQR", PolicySpec("lqr", "lqr"), starts, n_grid, lat, None)]
+        rows = [learned_row(args.task), *sampler_rows(args.task, None if args.quick else lat)]
+        rows.append(measured_row(task, "LQR", PolicySpec("lqr", "lqr"), starts, n_grid, lat, None))
         if not args.quick:
             # The closed-loop benchmark's evaluation of the full horizon on these very starts, when committed.
             stored = RESULTS / "closed_loop_b2000" / "full-horizon.json" if args.task == "acrobot" else None

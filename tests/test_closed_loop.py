@@ -312,6 +312,40 @@ def test_bench_aggregates_several_budgets_with_grid_only_rows_and_draws_the_curv
     assert rows["2000"]["success_median"] == 0.6 and rows["2000"]["seeds"] == [0, 1]
     assert np.isnan(rows["2000"]["heldout_median"]) and rows["3000"]["seeds"] == [0]
     assert block["train_settings"]["value_cap"] == 1500.0 and figure.stat().st_size > 0
+    assert "network" not in versus  # no row names its network
+
+
+def test_the_controller_table_has_a_row_per_learning_method_with_its_representative_network(tmp_path, monkeypatch):
+    """A method whose rows name their networks gets the median seed's (ties: the lower seed) in the summary, and
+    ``bench_controllers`` lists every other method of ``closed_loop.json`` at the shipped budget beside it."""
+    import importlib
+    import json
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.syspath_prepend(str(root / "benchmarks"))
+    bench_mod = importlib.import_module("bench_closed_loop")
+    controllers = importlib.import_module("bench_controllers")
+    bench = bench_mod.BenchConfig.for_task("acrobot", quick=False)
+    rows = [
+        {"seed": s, "success_rate": r, "heldout_success_rate": h, "network": f"net{s}.pt"}
+        for s, r, h in ((0, 0.1, 0.2), (1, 0.3, 0.1), (2, 0.2, 0.3), (3, 0.25, 0.3))
+    ]
+    summary = bench_mod.summarize(bench, {"uniform": {2000: rows}}, {"success_rate": 1.0})
+    at = summary["uniform"]["budgets"]["2000"]
+    assert at["success_median"] == pytest.approx(0.225) and at["network_seed"] == 2 and at["network"] == "net2.pt"
+    results = tmp_path / "results"
+    results.mkdir()
+    shipped = {"method": bench_mod.SHIPPED, "budget": 2000, "horizon": 5, "trust_region": "none"}
+    methods = {bench_mod.SHIPPED: {"budgets": {"2000": at}}, "uniform": summary["uniform"]}
+    methods["adversarial"] = {"budgets": {"300": at}}  # not at the shipped budget: no row
+    (results / "closed_loop.json").write_text(json.dumps({"acrobot": {**shipped, "methods": methods}}))
+    monkeypatch.setattr(controllers, "RESULTS", results)
+    (row,) = controllers.sampler_rows("acrobot")
+    assert row["method"] == "learned 5-step MPC (uniform, 4 seeds)" and row["nlp_solves"] == 2000
+    assert row["grid_success"] == pytest.approx(0.225) and row["heldout_success"] == pytest.approx(0.25)
+    assert row["median_ms"] is None  # no latency starts: not timed
+    assert controllers.sampler_rows("glider") == []
 
 
 def test_keep_best_deploys_the_network_the_best_collector_flew(tmp_path):
