@@ -433,8 +433,9 @@ def plot(
     summary: dict[str, Any], full: dict[str, Any], path: Path, title: str, labels: dict[str, str] | None = None
 ) -> None:
     """``success_vs_solves.png``: success vs solves and vs cumulative solve time, median and band (quartiles) over
-    seeds; a point with fewer seeds than the method's most is marked ``n=<seeds>``. Without recorded solve times
-    (aggregated evaluations) only the first panel is drawn. ``labels``: legend names of methods."""
+    seeds; a point with fewer seeds than the method's most is marked ``n=<seeds>``. The solve-time panel shows the
+    methods with recorded solve times at every budget (none: only the first panel is drawn). ``labels``: legend
+    names of methods (the legend sits below the panels)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -443,8 +444,10 @@ def plot(
     def timed(block: dict[str, Any]) -> bool:
         return all(np.isfinite(r["solve_time_s_median"]) and r["solve_time_s_median"] > 0 for r in block.values())
 
-    with_times = all(timed(b["budgets"]) for b in summary.values())
-    fig, axes_arr = plt.subplots(1, 2 if with_times else 1, figsize=(12 if with_times else 7, 4.5), squeeze=False)
+    with_times = any(timed(b["budgets"]) for b in summary.values())
+    rows_of_legend = (len(summary) + 2 + 2) // 3
+    size = (12 if with_times else 7, 4.5 + 0.25 * rows_of_legend)
+    fig, axes_arr = plt.subplots(1, 2 if with_times else 1, figsize=size, squeeze=False)
     axes = list(axes_arr[0])
     for method, block in summary.items():
         budgets = sorted(int(b) for b in block["budgets"])
@@ -453,9 +456,9 @@ def plot(
         lo = [100 * r["success_q25"] for r in rows]
         hi = [100 * r["success_q75"] for r in rows]
         counts = [len(r["success_per_seed"]) for r in rows]
-        xs_by_panel = [budgets] + ([[r["solve_time_s_median"] for r in rows]] if with_times else [])
+        xs_by_panel = [budgets] + ([[r["solve_time_s_median"] for r in rows]] if timed(block["budgets"]) else [])
         name = (labels or {}).get(method, method)
-        for ax, xs in zip(axes, xs_by_panel, strict=True):
+        for ax, xs in zip(axes, xs_by_panel, strict=False):
             (line,) = ax.plot(xs, med, marker="o", label=name, lw=2.5 if method == SHIPPED else 1.5)
             ax.fill_between(xs, lo, hi, color=line.get_color(), alpha=0.15)
             for x, y, n in zip(xs, med, counts, strict=True):
@@ -470,9 +473,11 @@ def plot(
         ax.set_ylabel("closed-loop success on the grid (%)")
         ax.set_ylim(-3, 103)
         ax.grid(True, which="both", alpha=0.3)
-    axes[0].legend(fontsize=8, loc="lower left")
-    fig.suptitle(title)
-    fig.tight_layout()
+    handles, names_of = axes[0].get_legend_handles_labels()
+    bottom = 0.07 * rows_of_legend * 4.5 / size[1]
+    fig.legend(handles, names_of, loc="lower center", ncol=3, fontsize=8, frameon=False)
+    fig.suptitle(title, fontsize=10)
+    fig.tight_layout(rect=(0, bottom, 1, 1))
     fig.savefig(path, dpi=110)
     plt.close(fig)
 

@@ -138,10 +138,11 @@ def learned_row(task_name: str) -> dict[str, Any]:
 
 
 def sampler_rows(task_name: str, lat: np.ndarray | None = None) -> list[dict[str, Any]]:
-    """One learned-MPC row per other learning method of ``closed_loop.json`` (uniform, SEAGuL, each with and without
-    Sobolev training, ...) at the shipped method's budget: its median success over seeds, and with ``lat`` the step
-    latency of its representative network (``methods[m]["budgets"][b]["network"]``, the seed closest to the median)
-    measured here, deployed as the shipped one."""
+    """One learned-MPC row per other sampler of ``closed_loop.json`` (uniform, SEAGuL, each with and without
+    Sobolev training; not the earlier closed-loop recipes compared there) at the shipped method's budget: its
+    median success over seeds, and with ``lat`` the step latency of its representative network
+    (``methods[m]["budgets"][b]["network"]``, the seed closest to the median) measured here, deployed as the
+    shipped one."""
     path = RESULTS / "closed_loop.json"
     block = json.loads(path.read_text()).get(task_name) if path.is_file() else None
     if not block:
@@ -150,7 +151,8 @@ def sampler_rows(task_name: str, lat: np.ndarray | None = None) -> list[dict[str
     rows = []
     for method, entry in block.get("methods", {}).items():
         row = entry.get("budgets", {}).get(budget)
-        if method == block["method"] or row is None:
+        # the shipped method has its own row; earlier closed-loop recipes are history (docs/closed_loop.md)
+        if method == block["method"] or method.startswith("closed-loop") or row is None:
             continue
         timing: dict[str, Any] = {"median_ms": None, "p95_ms": None}
         network = ROOT / str(row.get("network", ""))

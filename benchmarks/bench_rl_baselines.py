@@ -91,18 +91,27 @@ SWEEP: dict[str, dict[str, list[Any]]] = {
 def _run(config: SB3Config, out: Path, n_grid: int = 0, n_heldout: int = 100) -> dict[str, Any]:
     """Train (or reuse) one run, then evaluate its saved model on the grid (``n_grid`` per axis, 0 = the task's)
     and the held-out starts."""
+    from seagul_learn.baselines import extends
+
     done = out / "result.json"
+    extend = False
     if done.is_file():
         stored = json.loads(done.read_text())
         if config.describes(stored.get("config", {})):
             return stored
-        # Another config's run (e.g. a different budget) in this directory: train this one afresh.
-        print(f"{out}: holds a run of another config; training this one in its place", file=sys.stderr)
-        shutil.rmtree(out)
+        if extends(config, stored.get("config", {})):
+            # The same run with fewer steps: continue it to this budget (its curve goes on).
+            before = stored["config"]["total_timesteps"]
+            print(f"{out}: extending its run of {before} steps to {config.total_timesteps}", file=sys.stderr)
+            extend = True
+        else:
+            # Another config's run in this directory: train this one afresh.
+            print(f"{out}: holds a run of another config; training this one in its place", file=sys.stderr)
+            shutil.rmtree(out)
     from seagul_control.evaluation import SB3Policy, start_grid
     from seagul_learn.baselines import task_of_env
 
-    summary = train_sb3(config, out)
+    summary = train_sb3(config, out, extend=extend)
     task = task_of_env(config.env_id)
     policy = SB3Policy(task, summary["model"], algo=config.algo)
     grid, _ = start_grid(task, n_grid or task.profile.grid.points)

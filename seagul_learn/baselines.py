@@ -325,14 +325,31 @@ def training_env(config: SB3Config) -> Any:
     return venv
 
 
+def extends(config: SB3Config, stored: dict[str, Any]) -> bool:
+    """Whether ``stored`` (a finished run's ``config``) is ``config`` with fewer ``total_timesteps``: a run that
+    :func:`train_sb3` ``(extend=True)`` continues instead of starting afresh."""
+    if int(stored.get("total_timesteps", 0)) >= int(config.total_timesteps):
+        return False
+    return replace(config, total_timesteps=int(stored["total_timesteps"])).describes(stored)
+
+
 def train_sb3(
-    config: SB3Config, out: str | Path, on_point: Callable[[dict[str, Any]], None] | None = None
+    config: SB3Config,
+    out: str | Path,
+    on_point: Callable[[dict[str, Any]], None] | None = None,
+    extend: bool = False,
 ) -> dict[str, Any]:
     """Train ``config`` into ``out``; returns the run's summary (also ``curve.json``).
 
     The learning curve's points (``curve``) hold ``env_steps``, ``wall_s`` (training time so far, evaluation
     excluded), ``success_rate`` and ``mean_return`` on the grid; ``on_point`` sees each as it is made, and
     ``curve.partial.json`` holds the points so far until the run completes.
+
+    ``extend``: when ``out`` holds a finished run of this config with fewer ``total_timesteps`` (:func:`extends`),
+    continue it to ``total_timesteps`` instead of starting over: its model, observation/reward statistics and curve
+    are loaded and training goes on from its step count (SB3 ``reset_num_timesteps=False``; the wall time adds to
+    its own). The continued run is a valid longer run but not bit-identical to one trained in one go (the envs
+    restart their episodes and PPO its rollout); the summary records ``extended_from`` (the earlier steps).
     """
     import torch
     from stable_baselines3.common.callbacks import BaseCallback
@@ -344,13 +361,26 @@ def train_sb3(
     torch.set_num_threads(1)  # small networks: one thread is fastest and keeps runs machine-independent
     task = task_of_env(config.env_id)
     settings = config.resolved()
+    prior: dict[str, Any] | None = None
+    if extend and (out / "curve.json").is_file():
+        stored = json.loads((out / "curve.json").read_text())
+        prior = stored if extends(config, stored.get("config", {})) else None
     venv = training_env(config)
-    model = _make_model(config, venv)
+    if prior is None:
+        model = _make_model(config, venv)
+    else:
+        import stable_baselines3
+        from stable_baselines3.common.vec_env import VecNormalize
+
+        if config.normalize:
+            venv = VecNormalize.load(str(out / "vecnormalize.pkl"), venv.venv)
+            venv.training = True
+        model = getattr(stable_baselines3, config.algo).load(out / "model.zip", env=venv, device="cpu")
     n_grid = config.eval_grid or task.profile.grid.points
     grid, _ = start_grid(task, n_grid)
     live = _NormalizedPolicy(model, venv if config.normalize else None)
-    curve: list[dict[str, Any]] = []
-    clock = {"train": 0.0, "since": time.perf_counter()}
+    curve: list[dict[str, Any]] = list(prior["curve"]) if prior else []
+    clock = {"train": float(prior["train_wall_s"]) if prior else 0.0, "since": time.perf_counter()}
 
     def point() -> None:
         clock["train"] += time.perf_counter() - clock["since"]
@@ -367,6 +397,8 @@ def train_sb3(
         def __init__(self) -> None:
             super().__init__()
             self.next_point = config.eval_every
+            while curve and config.eval_every and self.next_point <= curve[-1]["env_steps"]:
+                self.next_point += config.eval_every
 
         def _on_step(self) -> bool:
             if config.eval_every and self.num_timesteps >= self.next_point:
@@ -374,7 +406,13 @@ def train_sb3(
                 self.next_point += config.eval_every
             return True
 
-    model.learn(total_timesteps=int(config.total_timesteps), callback=Curve(), progress_bar=config.progress)
+    done = int(model.num_timesteps) if prior else 0
+    model.learn(
+        total_timesteps=int(config.total_timesteps) - done,
+        callback=Curve(),
+        progress_bar=config.progress,
+        reset_num_timesteps=prior is None,
+    )
     if not curve or curve[-1]["env_steps"] != model.num_timesteps:
         point()
     model.save(out / "model.zip")
@@ -388,6 +426,8 @@ def train_sb3(
         "curve": curve,
         "model": str(out / "model.zip"),
     }
+    if prior:
+        summary["extended_from"] = [*prior.get("extended_from", []), int(prior["env_steps"])]
     _write_json(out / "curve.json", summary)
     (out / "curve.partial.json").unlink(missing_ok=True)
     return summary

@@ -15,6 +15,7 @@ from seagul_learn.baselines import (
     ZeroPolicy,
     config_from_args,
     episode_stats,
+    extends,
     smoke_config,
     task_of_env,
     train_sb3,
@@ -220,13 +221,38 @@ def test_bench_reuses_a_stored_run_only_for_the_same_config(tmp_path, monkeypatc
     class Retrained(Exception):
         pass
 
-    def fake_train(cfg, out):
-        raise Retrained(cfg.total_timesteps)
+    def fake_train(cfg, out, extend=False):
+        raise Retrained(f"{cfg.total_timesteps} extend={extend}")
 
     monkeypatch.setattr(bench, "train_sb3", fake_train)
-    with pytest.raises(Retrained, match="16000"):
+    # the same run with a larger budget: continued, not thrown away
+    with pytest.raises(Retrained, match="16000 extend=True"):
         bench._run(SB3Config(algo="SAC", total_timesteps=16000, seed=100, eval_every=0), run)
+    assert (run / "result.json").exists()
+    # a smaller budget, or another setting: trained afresh in its place
+    with pytest.raises(Retrained, match="4000 extend=False"):
+        bench._run(SB3Config(algo="SAC", total_timesteps=4000, seed=100, eval_every=0), run)
     assert not (run / "result.json").exists()
+
+
+def test_a_finished_run_is_extended_to_a_larger_budget_with_its_curve_and_statistics(tmp_path):
+    """``train_sb3(extend=True)``: a finished run of the same config with fewer steps goes on from its model and
+    normalisation statistics; its curve is kept and continued, its wall time added to; another config is refused."""
+    short = smoke_config(SB3Config(algo="PPO", seed=3))
+    first = train_sb3(short, tmp_path)
+    longer = replace(short, total_timesteps=2 * short.total_timesteps)
+    assert extends(longer, first["config"]) and not extends(short, first["config"])
+    assert not extends(replace(longer, gamma=0.9), first["config"])
+    second = train_sb3(longer, tmp_path, extend=True)
+    assert second["extended_from"] == [first["env_steps"]]
+    assert second["env_steps"] >= longer.total_timesteps > first["env_steps"]
+    assert second["curve"][: len(first["curve"])] == first["curve"]
+    steps = [p["env_steps"] for p in second["curve"]]
+    assert steps == sorted(steps) and len(set(steps)) == len(steps) and steps[-1] == second["env_steps"]
+    assert second["train_wall_s"] >= first["train_wall_s"]
+    import stable_baselines3
+
+    assert stable_baselines3.PPO.load(tmp_path / "model.zip").num_timesteps == second["env_steps"]
 
 
 def _bench_with_fake_runs(monkeypatch):

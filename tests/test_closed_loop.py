@@ -339,6 +339,7 @@ def test_the_controller_table_has_a_row_per_learning_method_with_its_representat
     shipped = {"method": bench_mod.SHIPPED, "budget": 2000, "horizon": 5, "trust_region": "none"}
     methods = {bench_mod.SHIPPED: {"budgets": {"2000": at}}, "uniform": summary["uniform"]}
     methods["adversarial"] = {"budgets": {"300": at}}  # not at the shipped budget: no row
+    methods["closed-loop+select (an earlier recipe)"] = summary["uniform"]  # history, not a sampler's row
     (results / "closed_loop.json").write_text(json.dumps({"acrobot": {**shipped, "methods": methods}}))
     monkeypatch.setattr(controllers, "RESULTS", results)
     (row,) = controllers.sampler_rows("acrobot")
