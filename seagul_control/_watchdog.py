@@ -30,6 +30,24 @@ class SolveTimeout(RuntimeError):
     """A guarded solve did not return within its wall-time limit (the child running it was killed)."""
 
 
+class SolverDied(RuntimeError):
+    """The child running a guarded solve died (a crash inside the solver, or a kill from outside): that solve failed,
+    the next call forks a fresh child."""
+
+
+def _die_with_parent(parent: int) -> None:
+    """Linux: the child is SIGKILLed when its parent dies (``PR_SET_PDEATHSIG``), so a solve that never returns
+    does not outlive a killed parent (e.g. a Ray actor killed mid-solve). Best effort elsewhere."""
+    try:
+        import ctypes
+
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGKILL))  # PR_SET_PDEATHSIG = 1
+    except (OSError, AttributeError):
+        return
+    if os.getppid() != parent:  # the parent died before prctl took effect
+        os._exit(1)
+
+
 def _serve(solvers: dict[int, Any], conn: Connection) -> None:
     """The child's loop: solve each request with the solver it names, send back the outputs (as arrays) and the
     solver's stats."""
@@ -83,10 +101,12 @@ class _Server:
     def start(self) -> None:
         self.stop()
         parent, child = Pipe(duplex=True)
+        owner = os.getpid()
         pid = os.fork()
         if pid == 0:  # the child: serve until the parent goes away, never return into the parent's code
             code = 0
             try:
+                _die_with_parent(owner)
                 parent.close()
                 _serve(self.solvers, child)
             except BaseException:
@@ -114,7 +134,7 @@ class _Server:
             ready = conn.poll(limit)
         except (BrokenPipeError, EOFError, OSError) as exc:
             self.stop()
-            raise RuntimeError(f"the solver's child process died ({exc})") from exc
+            raise SolverDied(f"the solver's child process died ({exc})") from exc
         if not ready:
             self.stop()
             raise SolveTimeout(f"no solution within max_solve_time={limit:g} s (solve stopped)")
@@ -122,7 +142,7 @@ class _Server:
             kind, payload, stats = conn.recv()
         except (EOFError, OSError) as exc:  # the child crashed inside the solver
             self.stop()
-            raise RuntimeError(f"the solver's child process died ({exc})") from exc
+            raise SolverDied(f"the solver's child process died ({exc})") from exc
         if kind != "ok":
             raise RuntimeError(payload)
         return payload, stats

@@ -57,7 +57,7 @@ import numpy as np
 
 from seagul_control import _io
 from seagul_control._io import atomic_write_text
-from seagul_control._watchdog import ForkedSolver, SolveTimeout
+from seagul_control._watchdog import ForkedSolver, SolverDied, SolveTimeout
 from seagul_envs.tasks.base import Task
 
 TimeMode = Literal["equal", "at_most", "free"]
@@ -874,6 +874,8 @@ class Transcription:
             out = call(**args)
         except SolveTimeout as exc:
             return self._failed(w0, f"timeout: {exc}", time.perf_counter() - start)
+        except SolverDied as exc:  # a crash (or kill) of the guarded solve's child: this solve failed
+            return self._failed(w0, f"solver died: {exc}", time.perf_counter() - start)
         elapsed = time.perf_counter() - start
         stats = call.stats()
         w = np.asarray(out["x"]).ravel()

@@ -327,10 +327,12 @@ def training_env(config: SB3Config) -> Any:
 
 def extends(config: SB3Config, stored: dict[str, Any]) -> bool:
     """Whether ``stored`` (a finished run's ``config``) is ``config`` with fewer ``total_timesteps``: a run that
-    :func:`train_sb3` ``(extend=True)`` continues instead of starting afresh."""
+    :func:`train_sb3` ``(extend=True)`` continues instead of starting afresh. ``eval_every`` may differ (it spaces
+    the curve's points, not the training); the continued run's points follow this config's."""
     if int(stored.get("total_timesteps", 0)) >= int(config.total_timesteps):
         return False
-    return replace(config, total_timesteps=int(stored["total_timesteps"])).describes(stored)
+    earlier = replace(config, total_timesteps=int(stored["total_timesteps"]))
+    return replace(earlier, eval_every=int(stored.get("eval_every", config.eval_every))).describes(stored)
 
 
 def train_sb3(

@@ -243,6 +243,7 @@ def test_a_finished_run_is_extended_to_a_larger_budget_with_its_curve_and_statis
     longer = replace(short, total_timesteps=2 * short.total_timesteps)
     assert extends(longer, first["config"]) and not extends(short, first["config"])
     assert not extends(replace(longer, gamma=0.9), first["config"])
+    assert extends(replace(longer, eval_every=7 * short.eval_every), first["config"])  # curve spacing only
     second = train_sb3(longer, tmp_path, extend=True)
     assert second["extended_from"] == [first["env_steps"]]
     assert second["env_steps"] >= longer.total_timesteps > first["env_steps"]

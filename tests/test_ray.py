@@ -143,6 +143,9 @@ class _ActorKiller(threading.Thread):
                 try:
                     mine = Path(f"/proc/{entry}/cmdline").read_bytes().startswith(_SOLVING)
                     mine = mine and _descends_from(int(entry), os.getpid())
+                    # the actor itself, not the child its guarded fatrop solves run in (forked from the actor, it
+                    # keeps the actor's process title of that moment)
+                    mine = mine and not Path(f"/proc/{_parent(int(entry))}/cmdline").read_bytes().startswith(b"ray::")
                 except (OSError, ValueError):  # the process ended while we looked
                     continue
                 if mine:

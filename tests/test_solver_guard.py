@@ -9,7 +9,10 @@ the next solve must work again (a fresh child).
 from __future__ import annotations
 
 import os
+import signal
+import threading
 import time
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -156,3 +159,60 @@ def test_a_trajectory_optimizer_attempt_that_never_returns_gives_way_to_the_next
     server.solvers[key] = fatrop._solver
     with pytest.raises(ValueError, match="max_solve_time"):
         TrajectoryOptimizer("acrobot", max_solve_time=0.0)
+
+
+def test_a_solving_child_that_dies_fails_that_solve_and_the_next_one_works():
+    """A crash inside the solver (or a kill from outside) of the guarded child is a failed solve, not an exception
+    that ends an evaluation or a training run; the next solve forks a fresh child."""
+    task = make_task("acrobot")
+    trans = Transcription(task, 5, step=0.1, solver="fatrop", max_solve_time=20.0)
+    reference = trans.solve(X, 5.0)
+    server = _watchdog._server()
+    key = trans._guard._key
+    server.solvers[key] = _Hang()
+    server.stop()
+    killer = threading.Timer(0.5, lambda: os.kill(server.pid, signal.SIGKILL))
+    killer.start()
+    died = trans.solve(X, 5.0)
+    killer.join()
+    assert not died.success and died.status.startswith("solver died")
+    assert server.pid is None
+    server.solvers[key] = trans._solver
+    again = trans.solve(X, 5.0)
+    np.testing.assert_allclose(again.primal, reference.primal, rtol=0, atol=1e-12)
+
+
+@pytest.mark.skipif(not Path("/proc/self/status").exists(), reason="Linux: PR_SET_PDEATHSIG")
+def test_the_solving_child_dies_with_its_parent():
+    """A parent killed while its child is inside a solve that never returns (a Ray actor killed mid-solve) does not
+    leave the child spinning."""
+    read, write = os.pipe()
+    parent = os.fork()
+    if parent == 0:  # a process with a guarded solver whose child hangs; it reports the child's pid, then waits
+        try:
+            os.close(read)
+            server = _watchdog._server()
+            server.solvers[0] = _Hang()
+            server.start()
+            os.write(write, str(server.pid).encode())
+            server.conn.send((0, {}))
+            time.sleep(60)
+        finally:
+            os._exit(0)
+    os.close(write)
+    child = int(os.read(read, 64).decode())
+    os.close(read)
+    assert Path(f"/proc/{child}").exists()
+    os.kill(parent, signal.SIGKILL)
+    os.waitpid(parent, 0)
+    deadline = time.monotonic() + 5.0
+    while Path(f"/proc/{child}").exists() and "Z" not in _state(child) and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert not Path(f"/proc/{child}").exists() or "Z" in _state(child)
+
+
+def _state(pid: int) -> str:
+    try:
+        return next(line for line in Path(f"/proc/{pid}/status").read_text().splitlines() if line.startswith("State"))
+    except (OSError, StopIteration):
+        return "Z (gone)"
