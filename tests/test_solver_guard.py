@@ -38,6 +38,16 @@ class _Hang:
         return {}
 
 
+def _hang_next_solve(trans: Transcription) -> tuple[_watchdog._Server, int]:
+    """Make the next guarded solve of ``trans`` hang (its solver swapped for :class:`_Hang`, the child stopped so the
+    next call forks one holding it); returns the server and the solver's key, to put the real solver back."""
+    server = _watchdog._server()
+    key = trans._guard._key
+    server.solvers[key] = _Hang()
+    server.stop()
+    return server, key
+
+
 def _child_alive(pid: int | None) -> bool:
     if pid is None:
         return False
@@ -67,10 +77,7 @@ def test_a_solve_that_never_returns_is_stopped_within_the_limit_and_the_next_one
     task = make_task("acrobot")
     trans = Transcription(task, 5, step=0.1, solver="fatrop", max_solve_time=1.0)
     reference = trans.solve(X, 5.0)
-    server = _watchdog._server()
-    key = trans._guard._key
-    server.solvers[key] = _Hang()
-    server.stop()  # the next call forks a child holding the hanging solver
+    server, key = _hang_next_solve(trans)
     start = time.perf_counter()
     hung = trans.solve(X, 5.0)
     elapsed = time.perf_counter() - start
@@ -108,10 +115,7 @@ def test_the_mpc_falls_back_when_a_step_hits_the_limit():
     _, info0 = mpc.act(X, 5.0)
     assert info0.source == "solver"
     problem, _ = mpc._select(4.9)
-    server = _watchdog._server()
-    key = problem.trans._guard._key
-    server.solvers[key] = _Hang()
-    server.stop()
+    server, key = _hang_next_solve(problem.trans)
     start = time.perf_counter()
     u1, info1 = mpc.act(X, 4.9)
     assert time.perf_counter() - start < 2.5
@@ -147,10 +151,7 @@ def test_a_trajectory_optimizer_attempt_that_never_returns_gives_way_to_the_next
     fatrop = opt._transcription("fatrop")
     assert fatrop.max_solve_time == 1.0 and fatrop._guard is not None
     assert opt._transcription("ipopt").max_solve_time == 1.0 and opt._transcription("ipopt")._guard is None
-    server = _watchdog._server()
-    key = fatrop._guard._key
-    server.solvers[key] = _Hang()
-    server.stop()
+    server, key = _hang_next_solve(fatrop)
     start = time.perf_counter()
     out = opt.solve(X, 5.0)
     assert time.perf_counter() - start < 20.0
@@ -167,10 +168,7 @@ def test_a_solving_child_that_dies_fails_that_solve_and_the_next_one_works():
     task = make_task("acrobot")
     trans = Transcription(task, 5, step=0.1, solver="fatrop", max_solve_time=20.0)
     reference = trans.solve(X, 5.0)
-    server = _watchdog._server()
-    key = trans._guard._key
-    server.solvers[key] = _Hang()
-    server.stop()
+    server, key = _hang_next_solve(trans)
     killer = threading.Timer(0.5, lambda: os.kill(server.pid, signal.SIGKILL))
     killer.start()
     died = trans.solve(X, 5.0)
