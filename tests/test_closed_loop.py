@@ -644,3 +644,25 @@ def test_the_tasks_recipe_is_what_the_benchmark_ships(monkeypatch, task_name):
     shipped = {**bench_mod.method_config(bench, bench_mod.SHIPPED), "budget": max(bench.budgets)}
     assert TrainConfig.recipe(task_name) == TrainConfig(**shipped)
     assert TrainConfig.recipe(task_name) != TrainConfig(task=task_name)  # not the paper's defaults
+
+
+def test_the_scaled_recipe_is_the_shipped_one_with_its_budget_split_halved(monkeypatch):
+    """``closed-loop+rest-1000`` (the curve below the shipped budget) differs from the shipped recipe only in how
+    its 1,000 solves split: the same fractions of uniform draws, guarded and deployed-collector rounds."""
+    import importlib
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parents[1]
+    monkeypatch.syspath_prepend(str(root / "benchmarks"))
+    bench_mod = importlib.import_module("bench_closed_loop")
+    bench = bench_mod.BenchConfig.for_task("acrobot", quick=False)
+    shipped = TrainConfig(**bench_mod.method_config(bench, bench_mod.SHIPPED), budget=2000)
+    scaled = TrainConfig(**bench_mod.method_config(bench, "closed-loop+rest-1000"), budget=1000)
+
+    def split(c: TrainConfig) -> tuple[float, float]:
+        rounds = (c.budget - c.cl_uniform_solves) / c.solves_per_round
+        return c.cl_uniform_solves / c.budget, c.cl_warmup_rounds / rounds
+
+    assert split(scaled) == split(shipped) == (0.5, 0.5)
+    differs = {f for f in shipped.__dataclass_fields__ if getattr(shipped, f) != getattr(scaled, f)}
+    assert differs == {"budget", "cl_uniform_solves", "cl_warmup_rounds"}
