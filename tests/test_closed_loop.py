@@ -308,7 +308,9 @@ def test_bench_aggregates_several_budgets_with_grid_only_rows_and_draws_the_curv
     assert versus["success_median"] == 0.375 and versus["vs_shipped"]["wins"] == 2  # the shipped method, seed by seed
     assert versus["vs_shipped"]["median_difference"] == pytest.approx(0.225)
     assert block["budget"] == 3000 and block["perch_success_rate"] == 0.9 and block["heldout_success_rate"] == 0.8
-    rows = block["methods"][bench_mod.SHIPPED]["budgets"]
+    # the glider's shipped method under its own name (its overrides turn off what "+rest" adds)
+    assert block["method"] == "closed-loop+sobolev" and bench_mod.SHIPPED not in block["methods"]
+    rows = block["methods"]["closed-loop+sobolev"]["budgets"]
     assert rows["2000"]["success_median"] == 0.6 and rows["2000"]["seeds"] == [0, 1]
     assert np.isnan(rows["2000"]["heldout_median"]) and rows["3000"]["seeds"] == [0]
     assert block["train_settings"]["value_cap"] == 1500.0 and figure.stat().st_size > 0
