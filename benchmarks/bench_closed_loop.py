@@ -539,7 +539,7 @@ def run_task(bench: BenchConfig, out: Path, workers: int, ship_dir: Path | None)
     network = Path(rep["network"])
     if ship_dir is not None:
         ship_dir.mkdir(parents=True, exist_ok=True)
-        dest = ship_dir / f"{bench.task}_{SHIPPED.replace('+', '_')}_b{final}.pt"
+        dest = ship_dir / f"{bench.task}_{shipped_name(bench.task).replace('+', '_')}_b{final}.pt"
         shutil.copyfile(network, dest)
         network = dest
         shutil.copyfile(out / "success_vs_solves.png", ship_dir.parent / f"success_vs_solves_{bench.task}.png")

@@ -214,3 +214,16 @@ def _state(pid: int) -> str:
         return next(line for line in Path(f"/proc/{pid}/status").read_text().splitlines() if line.startswith("State"))
     except (OSError, StopIteration):
         return "Z (gone)"
+
+
+def test_the_full_horizon_reference_gets_more_time_per_solve_than_a_real_time_step():
+    """``FullHorizonMPC`` defaults to 60 s per solve (the lookahead: 5 s), and its problems carry that limit: at 5 s a
+    loaded machine timed out the glider reference's steps and changed its episodes."""
+    from seagul_control.mpc import FullHorizonMPC
+
+    task = make_task("acrobot")
+    lookahead = LimitedLookaheadMPC(task, None, horizon=5, jit=False)
+    full = FullHorizonMPC(task)
+    assert lookahead.max_solve_time == 5.0 and full.max_solve_time == 60.0
+    problem, _ = full._select(4.9)
+    assert problem.trans.max_solve_time == 60.0
