@@ -3,7 +3,7 @@
 Usage::
 
     .venv/bin/python examples/animate_controllers.py --task acrobot \\
-        --network benchmarks/results/networks/acrobot_closed-loop_rest_b2000_seed0.pt \\
+        --network benchmarks/results/networks/acrobot_closed-loop_rest_b1000_seed1.pt \\
         [--sb3 PATH:ALGO ...] [--start "2.84159,-0.3,0,0"] [--out docs/figures/acrobot_controllers.gif] [--test]
 
 Controllers, left to right: the learned limited-lookahead MPC (``--network``, deployed as the closed-loop

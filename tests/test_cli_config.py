@@ -71,7 +71,7 @@ def test_defaults_are_the_tasks_recipe_or_with_recipe_paper_the_dataclass_defaul
         assert _train("--task", task) == TrainConfig.recipe(task)
         assert _train("--task", task, "--recipe", "paper") == TrainConfig(task=task)
     recipe = TrainConfig.recipe("acrobot")
-    assert recipe.sampler == "closed-loop" and recipe.budget == 2000 and recipe.hidden == (64, 64)
+    assert recipe.sampler == "closed-loop" and recipe.budget == 1000 and recipe.hidden == (64, 64)
     given = _train("--task", "acrobot", "--budget", "1500", "--hidden", "32", "--sampler", "closed-loop")
     assert (given.budget, given.hidden, given.sampler) == (1500, (32,), "closed-loop")
     assert given.cl_slice_fraction == recipe.cl_slice_fraction == 0.5  # the rest from the recipe

@@ -303,7 +303,19 @@ def test_bench_aggregates_several_budgets_with_grid_only_rows_and_draws_the_curv
     other.mkdir(parents=True)
     for seed, rate in ((0, 0.25), (1, 0.5)):
         (other / f"seed{seed}.json").write_text(json.dumps({**grid_only, "success_rate": rate}))
-    block = bench_mod.aggregate_task(glider, tmp_path, Path("net.pt"), 3000, figure, {"last": tmp_path / "other"})
+    flat = tmp_path / "flat"  # one budget's seed<N>.json directly in the folder: the budget comes with it
+    flat.mkdir()
+    (flat / "seed1.json").write_text(json.dumps({**grid_only, "success_rate": 0.1}))
+    label, spec = bench_mod.parse_compare(f"an earlier recipe={flat}@2000")
+    assert (label, spec) == ("an earlier recipe", (flat, 2000))
+    assert bench_mod.parse_compare("x=a/b")[1] == (Path("a/b"), None)
+    for bad in ("no-label", "=dir", "x=dir@many"):
+        with pytest.raises(ValueError, match="LABEL=DIR"):
+            bench_mod.parse_compare(bad)
+    compare = {"last": (tmp_path / "other", None), label: spec}
+    block = bench_mod.aggregate_task(glider, tmp_path, Path("net.pt"), 3000, figure, compare)
+    assert list(block["methods"][label]["budgets"]) == ["2000"]  # not the shipped budget, 3000
+    assert block["methods"][label]["budgets"]["2000"]["success_median"] == 0.1
     versus = block["methods"]["last"]["budgets"]["2000"]
     assert versus["success_median"] == 0.375 and versus["vs_shipped"]["wins"] == 2  # the shipped method, seed by seed
     assert versus["vs_shipped"]["median_difference"] == pytest.approx(0.225)
@@ -319,7 +331,7 @@ def test_bench_aggregates_several_budgets_with_grid_only_rows_and_draws_the_curv
 
 def test_the_controller_table_has_a_row_per_learning_method_with_its_representative_network(tmp_path, monkeypatch):
     """A method whose rows name their networks gets the median seed's (ties: the lower seed) in the summary, and
-    ``bench_controllers`` lists every other method of ``closed_loop.json`` at the shipped budget beside it."""
+    ``bench_controllers`` lists every other method of ``closed_loop.json`` beside it, each at its largest budget."""
     import importlib
     import json
     from pathlib import Path
@@ -338,16 +350,23 @@ def test_the_controller_table_has_a_row_per_learning_method_with_its_representat
     assert at["success_median"] == pytest.approx(0.225) and at["network_seed"] == 2 and at["network"] == "net2.pt"
     results = tmp_path / "results"
     results.mkdir()
-    shipped = {"method": bench_mod.SHIPPED, "budget": 2000, "horizon": 5, "trust_region": "none"}
-    methods = {bench_mod.SHIPPED: {"budgets": {"2000": at}}, "uniform": summary["uniform"]}
-    methods["adversarial"] = {"budgets": {"300": at}}  # not at the shipped budget: no row
+    shipped = {"method": bench_mod.SHIPPED, "budget": 1000, "horizon": 5, "trust_region": "none"}
+    low = {**at, "success_median": 0.05, "heldout_median": float("nan")}
+    methods = {
+        bench_mod.SHIPPED: {"budgets": {"1000": at}},
+        "uniform": {"budgets": {"300": low, **summary["uniform"]["budgets"]}},
+    }
+    methods["adversarial"] = {"budgets": {"300": low}}  # run to 300 solves only: its row is there
     methods["closed-loop+select (an earlier recipe)"] = summary["uniform"]  # history, not a sampler's row
     (results / "closed_loop.json").write_text(json.dumps({"acrobot": {**shipped, "methods": methods}}))
     monkeypatch.setattr(controllers, "RESULTS", results)
-    (row,) = controllers.sampler_rows("acrobot")
+    row, other = controllers.sampler_rows("acrobot")
+    # the largest budget a sampler was run to (not the shipped one, and not its first row)
     assert row["method"] == "learned 5-step MPC (uniform, 4 seeds)" and row["nlp_solves"] == 2000
     assert row["grid_success"] == pytest.approx(0.225) and row["heldout_success"] == pytest.approx(0.25)
     assert row["median_ms"] is None  # no latency starts: not timed
+    assert other["method"].startswith("learned 5-step MPC (adversarial") and other["nlp_solves"] == 300
+    assert other["grid_success"] == pytest.approx(0.05)
     assert controllers.sampler_rows("glider") == []
 
 
@@ -648,9 +667,9 @@ def test_the_tasks_recipe_is_what_the_benchmark_ships(monkeypatch, task_name):
     assert TrainConfig.recipe(task_name) != TrainConfig(task=task_name)  # not the paper's defaults
 
 
-def test_the_scaled_recipe_is_the_shipped_one_with_its_budget_split_halved(monkeypatch):
-    """``closed-loop+rest-1000`` (the curve below the shipped budget) differs from the shipped recipe only in how
-    its 1,000 solves split: the same fractions of uniform draws, guarded and deployed-collector rounds."""
+def test_the_shipped_recipe_is_the_2000_solve_one_with_its_budget_split_halved(monkeypatch):
+    """The shipped ``closed-loop+rest-1000`` differs from the 2,000-solve ``closed-loop+rest`` it replaced only in
+    how its 1,000 solves split: the same fractions of uniform draws, guarded and deployed-collector rounds."""
     import importlib
     from pathlib import Path
 
@@ -658,8 +677,9 @@ def test_the_scaled_recipe_is_the_shipped_one_with_its_budget_split_halved(monke
     monkeypatch.syspath_prepend(str(root / "benchmarks"))
     bench_mod = importlib.import_module("bench_closed_loop")
     bench = bench_mod.BenchConfig.for_task("acrobot", quick=False)
-    shipped = TrainConfig(**bench_mod.method_config(bench, bench_mod.SHIPPED), budget=2000)
-    scaled = TrainConfig(**bench_mod.method_config(bench, "closed-loop+rest-1000"), budget=1000)
+    assert bench_mod.SHIPPED == "closed-loop+rest-1000" and max(bench.budgets) == 1000
+    shipped = TrainConfig(**bench_mod.method_config(bench, "closed-loop+rest"), budget=2000)
+    scaled = TrainConfig(**bench_mod.method_config(bench, bench_mod.SHIPPED), budget=1000)
 
     def split(c: TrainConfig) -> tuple[float, float]:
         rounds = (c.budget - c.cl_uniform_solves) / c.solves_per_round

@@ -128,7 +128,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         choices=RECIPES,
         default="task",
         help="what the options not given take: 'task' the task's measured best settings (task.profile.train_recipe; "
-        "the acrobot's: the closed-loop sampler, 2,000 solves, 2 x 64; ignored when --sampler names another sampler), "
+        "the acrobot's: the closed-loop sampler, 1,000 solves, 2 x 64; ignored when --sampler names another sampler), "
         "'paper' the defaults shown below (the paper's settings) (default: task)",
     )
     config_group = parser.add_argument_group(
