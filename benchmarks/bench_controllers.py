@@ -152,11 +152,11 @@ def sampler_rows(task_name: str, lat: np.ndarray | None = None) -> list[dict[str
         # each sampler at the largest budget it was run to (the paper's samplers: 2,000 solves, twice the acrobot's
         # shipped budget), where its seeds were evaluated on the whole grid and the held-out starts
         budgets = entry.get("budgets", {})
-        budget = max(budgets, key=int, default=None)
-        row = budgets.get(budget) if budget is not None else None
         # the shipped method has its own row; earlier closed-loop recipes are history (docs/closed_loop.md)
-        if method == block["method"] or method.startswith("closed-loop") or row is None:
+        if method == block["method"] or method.startswith("closed-loop") or not budgets:
             continue
+        budget = max(budgets, key=int)
+        row = budgets[budget]
         timing: dict[str, Any] = {"median_ms": None, "p95_ms": None}
         network = ROOT / str(row.get("network", ""))
         if lat is not None and row.get("network") and network.is_file():
@@ -165,7 +165,7 @@ def sampler_rows(task_name: str, lat: np.ndarray | None = None) -> list[dict[str
         rows.append(
             {
                 "method": f"learned {block['horizon']}-step MPC ({method}, {len(row['success_per_seed'])} seeds)",
-                "nlp_solves": int(str(budget)),
+                "nlp_solves": int(budget),
                 "env_steps": 0,
                 "train_wall_s": None,
                 "grid_success": row["success_median"],
