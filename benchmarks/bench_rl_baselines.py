@@ -18,7 +18,8 @@ X0 starts every benchmark shares (seed 20211231). The zero-input policy on the s
 final grid success (ties: mean return).
 
 Every run writes its directory before the next starts, so a re-run with the same ``--out`` skips what is done.
-Figures: ``rl_curves_<task>.png`` (median and 25-75 % band over seeds, success and return against steps).
+Figures: ``rl_curves_<task>.png`` (median and 25-75 % band over seeds: success, return and final distance to the
+goal against steps, the zero-input policy's level beside each).
 
 The last line of stdout is one JSON object (the full run's is committed as ``benchmarks/results/rl_baselines.json``;
 the best seed's model and statistics are copied to ``benchmarks/results/models/``)::
@@ -49,6 +50,9 @@ sys.path.insert(0, str(ROOT))
 from benchmarks._common import machine  # noqa: E402
 from seagul_control.evaluation import heldout_starts  # noqa: E402
 from seagul_learn.baselines import ALGOS, SB3Config, ZeroPolicy, episode_stats, train_sb3  # noqa: E402
+
+#: What each point of a stored learning curve keeps (``mean_final_distance`` since the nineteenth session).
+CURVE_KEYS = ("env_steps", "wall_s", "success_rate", "mean_return", "mean_final_distance")
 
 #: Environment steps of the full run (issue 12: PPO up to 2M on the acrobot, SAC ~300k; comparable on the glider).
 FULL_STEPS: dict[str, dict[str, int]] = {
@@ -162,29 +166,39 @@ def sweep(task: str, algo: str, budget: int, out: Path, workers: int, quick: boo
 
 
 def plot(task: str, per_algo: dict[str, list[dict[str, Any]]], floor: dict[str, float], path: Path) -> None:
-    """Median and 25-75 % band over seeds of grid success and mean return against environment steps."""
+    """Median and 25-75 % band over seeds of grid success, mean return and mean final distance to the goal against
+    environment steps, the zero-input policy's level beside each. Curves stored before the distance was kept (the
+    thirteenth to eighteenth sessions' runs) are left out of the distance panel."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4))
+    panels = (
+        ("success_rate", "grid success"),
+        ("mean_return", "mean return (trajectory cost, negated)"),
+        ("mean_final_distance", "mean final distance to the goal"),
+    )
+    fig, axes = plt.subplots(1, len(panels), figsize=(16, 4))
     for algo, runs in per_algo.items():
-        steps = np.array([p["env_steps"] for p in runs[0]["curve"]])
         n = min(len(r["curve"]) for r in runs)
-        for ax, key in zip(axes, ("success_rate", "mean_return"), strict=True):
+        steps = np.array([p["env_steps"] for p in runs[0]["curve"][:n]])
+        for ax, (key, _) in zip(axes, panels, strict=True):
+            if not all(key in p for r in runs for p in r["curve"][:n]):
+                continue
             vals = np.array([[p[key] for p in r["curve"][:n]] for r in runs])
-            med = np.median(vals, axis=0)
-            ax.plot(steps[:n], med, label=f"{algo} (median of {len(runs)})")
-            ax.fill_between(steps[:n], *np.percentile(vals, [25, 75], axis=0), alpha=0.25)
-    for ax, key, label in zip(axes, ("success_rate", "mean_return"), ("grid success", "mean return"), strict=True):
-        ax.axhline(floor[key], color="k", ls=":", label="zero input")
-        ax.set_xlabel("environment steps (log scale: SAC budgets are far smaller than PPO's)")
+            ax.plot(steps, np.median(vals, axis=0), label=f"{algo} (median of {len(runs)})")
+            ax.fill_between(steps, *np.percentile(vals, [25, 75], axis=0), alpha=0.25)
+    for ax, (key, label) in zip(axes, panels, strict=True):
+        if key in floor:
+            ax.axhline(floor[key], color="k", ls=":", label="zero input")
+        ax.set_xlabel("environment steps (log scale)")
         ax.set_xscale("log")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     axes[1].set_yscale("symlog")
     axes[0].set_ylim(-0.02, 1.02)
+    axes[2].set_ylim(bottom=0.0)
     axes[0].legend()
     fig.suptitle(f"{task}: SB3 baselines on the evaluation grid")
     fig.tight_layout()
@@ -252,10 +266,7 @@ def run_task(task: str, algos: list[str], args: argparse.Namespace, out: Path, s
             "mean_final_distance": float(np.median([r["grid"]["mean_final_distance"] for r in runs])),
             "settings": runs[0]["resolved"] | {"gamma": runs[0]["config"]["gamma"]},
             # Per seed, so that a later --update of another algorithm can redraw this one's curve.
-            "curves": [
-                [{k: p[k] for k in ("env_steps", "wall_s", "success_rate", "mean_return")} for p in r["curve"]]
-                for r in runs
-            ],
+            "curves": [[{k: p[k] for k in CURVE_KEYS if k in p} for p in r["curve"]] for r in runs],
         }
         if args.settings_from:
             result[algo.lower()]["settings_from"] = str(args.settings_from)

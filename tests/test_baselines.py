@@ -268,7 +268,10 @@ def _bench_with_fake_runs(monkeypatch):
 
     def fake_run(config, out, n_grid=0, n_heldout=100):
         seen.append(config)
-        curve = [{"env_steps": s, "wall_s": 1.0, "success_rate": 0.0, "mean_return": -5.0 * s} for s in (10, 20)]
+        curve = [
+            {"env_steps": s, "wall_s": 1.0, "success_rate": 0.0, "mean_return": -5.0 * s, "mean_final_distance": 4.0}
+            for s in (10, 20)
+        ]
         return {
             "config": config.to_dict(),
             "resolved": config.resolved(),
@@ -317,6 +320,8 @@ def test_bench_update_of_one_algorithm_keeps_the_others_and_takes_settings_from_
     assert acro["sweep"] == {"PPO": {"rows": [1]}}
     assert acro["sac"]["success_rate"] == 0.25 and acro["sac"]["settings_from"] == str(sweep)
     assert len(acro["sac"]["curves"]) == 2 and acro["sac"]["curves"][0][1]["env_steps"] == 20
+    # Each point keeps the distance to the goal (the third panel), so a later --update can redraw it.
+    assert acro["sac"]["curves"][0][1]["mean_final_distance"] == 4.0
     # PPO's curves were not stored, so this run's figure is SAC's alone, under its own name.
     assert Path(acro["figure"]).name == "rl_curves_acrobot_sac.png" and Path(acro["figure"]).is_file()
 
