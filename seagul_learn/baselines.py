@@ -271,14 +271,19 @@ class ZeroPolicy:
 
 
 def episode_stats(task: Any, policy: Any, starts: np.ndarray, env_id: str | None = None) -> dict[str, float]:
-    """Success rate (the task's rule), mean return and mean final distance of ``policy`` from ``starts``."""
+    """Success rate (the task's rule), mean return, mean final distance ``||x(T) - x*||`` and mean miss of the
+    success rule (``SuccessRule.violation`` of the final state, in units of its tolerances; 0 where it succeeds) of
+    ``policy`` from ``starts``. The miss is the measure of learning that is comparable across tasks: the glider's
+    return (its trajectory cost) rises when a policy stops perching, and its raw distance mixes metres and m/s."""
     from seagul_control.evaluation import run_policy_episode
 
     results = [run_policy_episode(task, policy, x0, index=i, env_id=env_id)[0] for i, x0 in enumerate(starts)]
+    rule = task.profile.success
     return {
         "success_rate": float(np.mean([r.success for r in results])),
         "mean_return": float(np.mean([-r.cost for r in results])),
         "mean_final_distance": float(np.mean([r.final_distance for r in results])),
+        "mean_miss": float(np.mean([rule.violation(task, np.asarray(r.final_state)) for r in results])),
     }
 
 

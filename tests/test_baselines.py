@@ -197,8 +197,12 @@ def test_zero_input_floor_and_heldout_starts():
     assert np.array_equal(starts, heldout_starts(task, 5)) and all(task.in_x0(x) for x in starts)
     at_goal = episode_stats(task, ZeroPolicy(task.nu), task.goal[None, :])
     assert at_goal["success_rate"] == 1.0  # the upright equilibrium stays put without input
+    assert at_goal["mean_miss"] == 0.0
     away = episode_stats(task, ZeroPolicy(task.nu), starts)
     assert away["success_rate"] == 0.0 and away["mean_final_distance"] > 1.0
+    # The miss is the distance's excess over the goal radius in radii (the acrobot's rule is one distance).
+    radius = task.profile.success.distance
+    assert away["mean_miss"] == pytest.approx((away["mean_final_distance"] - radius) / radius)
 
 
 def test_bench_reuses_a_stored_run_only_for_the_same_config(tmp_path, monkeypatch) -> None:
@@ -269,7 +273,14 @@ def _bench_with_fake_runs(monkeypatch):
     def fake_run(config, out, n_grid=0, n_heldout=100):
         seen.append(config)
         curve = [
-            {"env_steps": s, "wall_s": 1.0, "success_rate": 0.0, "mean_return": -5.0 * s, "mean_final_distance": 4.0}
+            {
+                "env_steps": s,
+                "wall_s": 1.0,
+                "success_rate": 0.0,
+                "mean_return": -5.0 * s,
+                "mean_final_distance": 4.0,
+                "mean_miss": 7.0,
+            }
             for s in (10, 20)
         ]
         return {
@@ -320,8 +331,8 @@ def test_bench_update_of_one_algorithm_keeps_the_others_and_takes_settings_from_
     assert acro["sweep"] == {"PPO": {"rows": [1]}}
     assert acro["sac"]["success_rate"] == 0.25 and acro["sac"]["settings_from"] == str(sweep)
     assert len(acro["sac"]["curves"]) == 2 and acro["sac"]["curves"][0][1]["env_steps"] == 20
-    # Each point keeps the distance to the goal (the third panel), so a later --update can redraw it.
-    assert acro["sac"]["curves"][0][1]["mean_final_distance"] == 4.0
+    # Each point keeps the distance and the miss (the third panel), so a later --update can redraw it.
+    assert acro["sac"]["curves"][0][1]["mean_final_distance"] == 4.0 and acro["sac"]["curves"][0][1]["mean_miss"] == 7.0
     # PPO's curves were not stored, so this run's figure is SAC's alone, under its own name.
     assert Path(acro["figure"]).name == "rl_curves_acrobot_sac.png" and Path(acro["figure"]).is_file()
 
