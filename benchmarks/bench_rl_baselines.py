@@ -169,18 +169,21 @@ def plot(task: str, per_algo: dict[str, list[dict[str, Any]]], floor: dict[str, 
     """Median and 25-75 % band over seeds of grid success, mean return and mean miss of the success rule (in units
     of its tolerances, :func:`seagul_learn.baselines.episode_stats`) against environment steps, the zero-input
     policy's level beside each. Curves stored before the miss was kept (the thirteenth to eighteenth sessions'
-    runs) are left out of the miss panel."""
+    runs) are left out of the miss panel, which is not drawn when no curve has it."""
     import matplotlib
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    panels = (
+    panels = [
         ("success_rate", "grid success"),
         ("mean_return", "mean return (trajectory cost, negated)"),
         ("mean_miss", "mean miss of the success rule (tolerances)"),
-    )
-    fig, axes = plt.subplots(1, len(panels), figsize=(16, 4))
+    ]
+    if not any("mean_miss" in p for runs in per_algo.values() for r in runs for p in r["curve"]):
+        panels.pop()  # curves stored before the miss was kept: no empty panel
+    fig, axes = plt.subplots(1, len(panels), figsize=(5.3 * len(panels), 4), sharex=True)
+    colors = {algo: f"C{i}" for i, algo in enumerate(sorted(per_algo))}  # one colour per algorithm in every panel
     for algo, runs in per_algo.items():
         n = min(len(r["curve"]) for r in runs)
         steps = np.array([p["env_steps"] for p in runs[0]["curve"][:n]])
@@ -188,8 +191,8 @@ def plot(task: str, per_algo: dict[str, list[dict[str, Any]]], floor: dict[str, 
             if not all(key in p for r in runs for p in r["curve"][:n]):
                 continue
             vals = np.array([[p[key] for p in r["curve"][:n]] for r in runs])
-            ax.plot(steps, np.median(vals, axis=0), label=f"{algo} (median of {len(runs)})")
-            ax.fill_between(steps, *np.percentile(vals, [25, 75], axis=0), alpha=0.25)
+            ax.plot(steps, np.median(vals, axis=0), color=colors[algo], label=f"{algo} (median of {len(runs)})")
+            ax.fill_between(steps, *np.percentile(vals, [25, 75], axis=0), color=colors[algo], alpha=0.25)
     for ax, (key, label) in zip(axes, panels, strict=True):
         if key in floor:
             ax.axhline(floor[key], color="k", ls=":", label="zero input")
@@ -198,9 +201,11 @@ def plot(task: str, per_algo: dict[str, list[dict[str, Any]]], floor: dict[str, 
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     axes[1].set_yscale("symlog")
+    axes[1].set_ylim(top=min(axes[1].get_ylim()[1], 0.0))  # returns are negated costs: nothing above 0
     axes[0].set_ylim(-0.02, 1.02)
-    axes[2].set_yscale("symlog", linthresh=0.1)  # 0 = success; zero input misses by tens of tolerances
-    axes[2].set_ylim(bottom=0.0)
+    if len(panels) == 3:
+        axes[2].set_yscale("symlog", linthresh=1.0)  # 0 = success; zero input misses by tens of tolerances
+        axes[2].set_ylim(0.0, max(axes[2].get_ylim()[1], 1.0))
     axes[0].legend()
     fig.suptitle(f"{task}: SB3 baselines on the evaluation grid")
     fig.tight_layout()
@@ -310,6 +315,32 @@ def _stored_curves(update: str | None, task: str, algos: list[str]) -> dict[str,
     }
 
 
+def replot(path: Path, tasks: list[str]) -> int:
+    """Redraw the figures of a stored result (``--replot``) from its per-seed curves and zero-input levels, into the
+    paths it names (relative to the repository root); a task without stored curves is skipped with a message."""
+    try:
+        stored = json.loads(path.read_text())
+    except (OSError, json.JSONDecodeError) as exc:
+        raise SystemExit(f"--replot {path}: not a readable result JSON ({exc!r})") from exc
+    drawn = {}
+    for task in tasks:
+        block = stored.get(task, {})
+        curves = {
+            a: [{"curve": c} for c in block[a.lower()]["curves"]]
+            for a in ALGOS
+            if block.get(a.lower(), {}).get("curves")
+        }
+        if not curves or "figure" not in block:
+            print(f"{task}: no stored curves in {path}, nothing drawn", file=sys.stderr)
+            continue
+        figure = Path(block["figure"])
+        figure = figure if figure.is_absolute() else ROOT / figure
+        plot(task, curves, block.get("zero_input", {}).get("grid", {}), figure)
+        drawn[task] = str(block["figure"])
+    print(json.dumps({"replotted": drawn}))
+    return 0
+
+
 def _stored_best(path: Path, task: str, algo: str) -> dict[str, Any]:
     """The best setting of a committed sweep (``rl_sweep.json``: ``{task: {algo: {"best": {...}}}}``)."""
     try:
@@ -395,7 +426,15 @@ def main(argv: list[str] | None = None) -> int:
         default=None,
         help="merge this run's tasks into this result JSON (its other tasks kept) and print the merged object",
     )
+    parser.add_argument(
+        "--replot",
+        default=None,
+        metavar="JSON",
+        help="no training: redraw each task's figure from the curves stored in this result JSON, print it",
+    )
     args = parser.parse_args(argv)
+    if args.replot:
+        return replot(Path(args.replot), [t for t in args.tasks.split(",") if t])
     overrides: dict[tuple[str, str], dict[str, Any]] = {}
     for key, name, value in args.set:
         overrides.setdefault(key, {})[name] = value

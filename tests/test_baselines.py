@@ -337,6 +337,29 @@ def test_bench_update_of_one_algorithm_keeps_the_others_and_takes_settings_from_
     assert Path(acro["figure"]).name == "rl_curves_acrobot_sac.png" and Path(acro["figure"]).is_file()
 
 
+def test_bench_replot_redraws_a_stored_result_without_training(tmp_path, monkeypatch, capsys) -> None:
+    """``bench_rl_baselines --replot FILE``: each task's figure is redrawn from the stored per-seed curves into the
+    path the file names, nothing trains; a task without stored curves is skipped by name; a bad file is refused."""
+    bench, seen = _bench_with_fake_runs(monkeypatch)
+    point = {"env_steps": 10, "wall_s": 1.0, "success_rate": 0.5, "mean_return": -3.0, "mean_miss": 0.4}
+    figure = tmp_path / "curves.png"
+    stored = {
+        "acrobot": {"ppo": {"curves": [[point, {**point, "env_steps": 20}]] * 2}, "figure": str(figure)},
+        "glider": {"ppo": {"algo": "PPO"}, "figure": str(tmp_path / "never.png")},
+    }
+    path = tmp_path / "rl.json"
+    path.write_text(json.dumps(stored))
+    assert bench.main(["--replot", str(path)]) == 0
+    assert seen == [] and figure.is_file() and figure.stat().st_size > 10_000
+    assert not (tmp_path / "never.png").exists()
+    out, err = capsys.readouterr()
+    assert json.loads(out.splitlines()[-1]) == {"replotted": {"acrobot": str(figure)}}
+    assert "glider: no stored curves" in err
+    path.write_text("{not json")
+    with pytest.raises(SystemExit, match="not a readable result JSON"):
+        bench.main(["--replot", str(path)])
+
+
 def test_bench_set_overrides_a_setting_per_task_and_algorithm_and_refuses_bad_ones(tmp_path, monkeypatch) -> None:
     """``bench_rl_baselines --set acrobot:SAC:net_arch=64,64``: the seeds of that task and algorithm train with it
     (over the sweep's or the zoo's), the result records it, and unknown fields, fixed fields or bad values are
