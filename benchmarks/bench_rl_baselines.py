@@ -57,7 +57,7 @@ CURVE_KEYS = ("env_steps", "wall_s", "success_rate", "mean_return", "mean_final_
 #: Environment steps of the full run (issue 12: PPO up to 2M on the acrobot, SAC ~300k; comparable on the glider).
 FULL_STEPS: dict[str, dict[str, int]] = {
     "acrobot": {"PPO": 2_000_000, "SAC": 300_000},
-    "glider": {"PPO": 1_000_000, "SAC": 200_000},
+    "glider": {"PPO": 1_200_000, "SAC": 300_000},
 }
 QUICK_STEPS: dict[str, dict[str, int]] = {
     "acrobot": {"PPO": 8_192, "SAC": 3_000},
