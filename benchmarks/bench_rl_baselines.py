@@ -307,11 +307,16 @@ def _stored_curves(update: str | None, task: str, algos: list[str]) -> dict[str,
     train), in ``plot``'s form; an algorithm stored without curves (before they were kept) is left out."""
     if not update or not Path(update).is_file():
         return {}
-    stored = json.loads(Path(update).read_text()).get(task, {})
+    return _curves_of(json.loads(Path(update).read_text()).get(task, {}), skip=algos)
+
+
+def _curves_of(block: dict[str, Any], skip: list[str] | tuple[str, ...] = ()) -> dict[str, list[dict[str, Any]]]:
+    """The per-seed curves stored in one task's result block, in ``plot``'s form, for every algorithm not in
+    ``skip``; an algorithm stored without curves is left out."""
     return {
-        a: [{"curve": c} for c in stored[a.lower()]["curves"]]
+        a: [{"curve": c} for c in block[a.lower()]["curves"]]
         for a in ALGOS
-        if a not in algos and stored.get(a.lower(), {}).get("curves")
+        if a not in skip and block.get(a.lower(), {}).get("curves")
     }
 
 
@@ -325,11 +330,7 @@ def replot(path: Path, tasks: list[str]) -> int:
     drawn = {}
     for task in tasks:
         block = stored.get(task, {})
-        curves = {
-            a: [{"curve": c} for c in block[a.lower()]["curves"]]
-            for a in ALGOS
-            if block.get(a.lower(), {}).get("curves")
-        }
+        curves = _curves_of(block)
         if not curves or "figure" not in block:
             print(f"{task}: no stored curves in {path}, nothing drawn", file=sys.stderr)
             continue
