@@ -210,6 +210,15 @@ def _controller_label(method: str, task: str) -> str:
     return method
 
 
+def _short_name(method: str) -> str:
+    """``learned 5-step MPC (uniform, 5 seeds)`` -> ``5-step MPC, uniform sampler``; other rows keep their name."""
+    if not method.startswith("learned") or "(" not in method:
+        return method.split(" (")[0]
+    inner = method[method.find("(") + 1 : method.rfind(")")].split(",")[0].strip()
+    head = method.split(" (")[0]
+    return f"{head}, shipped" if inner.startswith("closed-loop") else f"{head}, {inner} sampler"
+
+
 def controller_rows(task: str, *, brief: bool) -> list[list[str]]:
     data = load(f"controllers_{task}.json")
     rows = []
@@ -518,12 +527,12 @@ def draw_figures() -> list[Path]:
         plt.close(fig)
         drawn.append(path)
 
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2), constrained_layout=True)
+    fig, axes = plt.subplots(1, 2, figsize=(15, 4.4), constrained_layout=True)
     for ax, task in zip(axes, ("acrobot", "glider"), strict=True):
         for r in load(f"controllers_{task}.json")["rows"]:
-            ax.scatter(r["median_ms"], r["heldout_success"], s=40)
-            ax.annotate(r["method"].split(" (")[0].replace("learned ", ""), (r["median_ms"], r["heldout_success"]),
-                        fontsize=7, xytext=(4, 3), textcoords="offset points")
+            ax.scatter(r["median_ms"], r["heldout_success"], s=45, label=_short_name(r["method"]),
+                       marker="*" if _short_name(r["method"]).startswith("learned") else "o")
+        ax.legend(fontsize=7, loc="upper left", bbox_to_anchor=(1.01, 1.0))
         ax.set_xscale("log")
         ax.set_xlabel("median step time (ms)")
         ax.set_ylabel("held-out success")

@@ -1,5 +1,5 @@
 #!/usr/bin/env bash
-# Create ./.venv (Python 3.11+) and install seagul with its dev tools. Idempotent: re-running after a change of
+# Create ./.venv (Python 3.11+) and install seagul with its dev and docs tools. Idempotent: re-running after a change of
 # pyproject.toml reinstalls; otherwise it returns at once.
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -16,5 +16,5 @@ fi
 .venv/bin/python -m pip install -q --upgrade pip
 # The CPU wheel of torch first: an unpinned torch would pull a multi-GB CUDA build.
 .venv/bin/python -m pip install -q "torch==2.13.0"
-.venv/bin/python -m pip install -q -e ".[dev]"
+.venv/bin/python -m pip install -q -e ".[dev,docs]"
 echo "$want" > "$stamp"

@@ -1,0 +1,123 @@
+"""The manual and the record: generated results are current, the README stays a front page, every path the docs
+name exists, and nothing in the repository narrates how it was developed."""
+
+from __future__ import annotations
+
+import re
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT / "scripts"))
+
+import make_results  # noqa: E402
+
+
+def tracked_files() -> list[Path]:
+    try:
+        out = subprocess.run(["git", "ls-files"], cwd=ROOT, capture_output=True, text=True, check=True).stdout
+    except (OSError, subprocess.CalledProcessError):
+        pytest.skip("not a git checkout")
+    return [ROOT / line for line in out.splitlines() if line]
+
+
+def text_files() -> list[Path]:
+    suffixes = {".py", ".md", ".toml", ".yml", ".yaml", ".sh", ".json", ".txt", ".cfg", ".xml", ".csv"}
+    return [p for p in tracked_files() if p.suffix in suffixes and p.exists()]
+
+
+def test_generated_results_are_current():
+    """README's table, docs/results.md and the result indexes are what scripts/make_results.py makes of the JSON."""
+    assert make_results.main(["--check"]) == 0, "run: python scripts/make_results.py"
+
+
+def test_check_fails_when_a_generated_number_is_edited(tmp_path, monkeypatch):
+    """--check is not a tautology: a hand-edited number in docs/results.md is reported."""
+    page = tmp_path / "results.md"
+    page.write_text(make_results.results_page().replace("99.25 %", "99.5 %", 1))
+    outputs = make_results.outputs()
+    edited = {(page if p.name == "results.md" and p.parent.name == "docs" else p): f for p, f in outputs.items()}
+    monkeypatch.setattr(make_results, "outputs", lambda: edited)
+    assert make_results.main(["--check"]) == 1
+
+
+def test_readme_is_a_front_page():
+    text = (ROOT / "README.md").read_text()
+    assert len(text.splitlines()) <= 200
+    quick = text.split("## Quick start", 1)[1].split("\n## ", 1)[0]
+    block = quick.split("```bash", 1)[1].split("```", 1)[0]
+    commands = [line for line in block.splitlines() if line.strip()]
+    assert [c.split("#")[0].strip() for c in commands] == ["bash scripts/reproduce.sh", "bash scripts/test.sh"]
+    assert make_results.BEGIN in text and make_results.END in text
+
+
+def test_every_figure_the_results_page_shows_exists():
+    page = (ROOT / "docs" / "results.md").read_text()
+    images = re.findall(r"!\[[^\]]*\]\(([^)]+)\)", page)
+    assert images, "the results page shows no figure"
+    for image in images:
+        assert (ROOT / "docs" / image).is_file(), image
+
+
+#: Paths the text of tracked files names: docs pages and result files.
+PATH_PATTERN = re.compile(r"(?<![\w/.-])((?:docs|benchmarks/results)/[\w./+-]*\w)")
+
+
+def test_every_docs_and_results_path_named_in_the_repository_exists():
+    missing = []
+    for path in text_files():
+        if path.is_relative_to(ROOT / "benchmarks" / "results"):
+            continue  # result files record where they were written by the run that made them
+        for line_no, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+            for name in PATH_PATTERN.findall(line):
+                if any(ch in name for ch in "<>*{}") or "DIR" in name:
+                    continue
+                if not (ROOT / name).exists():
+                    missing.append(f"{path.relative_to(ROOT)}:{line_no}: {name}")
+    assert not missing, "paths that do not exist:\n" + "\n".join(missing)
+
+
+ORDINALS = (
+    "first|second|third|fourth|fifth|sixth|seventh|eighth|ninth|tenth|eleventh|twelfth|thirteenth|fourteenth|"
+    "fifteenth|sixteenth|seventeenth|eighteenth|nineteenth|twentieth|twenty-first|twenty-second"
+)
+#: Narration of the development: work sessions or rounds by number, issue numbers, "this session".
+NARRATION = re.compile(
+    rf"\b(?:(?:{ORDINALS})(?:\s+(?:and|to)\s+(?:{ORDINALS}))?\s+sessions?|sessions?\s+\d+|"
+    r"(?:this|last|next|previous|earlier)\s+(?:session|work\s+round)|work\s+rounds?|issues?\s+#?\d+)\b",
+    re.IGNORECASE,
+)
+
+
+def test_narration_pattern_finds_what_it_must():
+    for text in ("the twelfth session's recipe", "sessions 15-17", "issue 12", "Issue #10", "this session",
+                 "the fifteenth to seventeenth sessions"):
+        assert NARRATION.search(text), text
+    for text in ("10 closed-loop rounds", "the first round", "a Ray session", "first use", "session_id"):
+        assert not NARRATION.search(text), text
+
+
+def test_nothing_in_the_repository_narrates_its_development():
+    hits = []
+    for path in text_files():
+        rel = path.relative_to(ROOT)
+        if NARRATION.search(str(rel)):
+            hits.append(f"file name: {rel}")
+        for line_no, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
+            if NARRATION.search(line):
+                hits.append(f"{rel}:{line_no}: {line.strip()[:120]}")
+    assert not hits, "development narration:\n" + "\n".join(hits)
+
+
+def test_changelog_follows_keep_a_changelog():
+    import seagul_learn
+
+    text = (ROOT / "CHANGELOG.md").read_text()
+    versions = re.findall(r"^## \[(\d+\.\d+\.\d+)\] - \d{4}-\d{2}-\d{2}$", text, re.MULTILINE)
+    assert versions, "no version sections"
+    assert versions[0] == seagul_learn.__version__, "the newest changelog entry is not the package version"
+    for section in re.findall(r"^### (\w+)$", text, re.MULTILINE):
+        assert section in {"Added", "Changed", "Deprecated", "Removed", "Fixed", "Security"}, section
