@@ -1,4 +1,4 @@
-"""Closed-loop success per solve: which way of spending NLP solves gives a learned MPC that controls (issue 10).
+"""Closed-loop success per solve: which way of spending NLP solves gives a learned MPC that controls.
 
 Usage::
 
@@ -66,7 +66,7 @@ METHODS: dict[str, dict[str, Any]] = {
     # safer controller than the deployed one: its queries stay teachable); then 10 rounds at the queries of the
     # deployed controller itself (unguarded, blended), each collected with a refit of the buffer so far (the
     # network that would be deployed then: DAgger). Queries chosen at random. The final refit is an ensemble of 3
-    # fits, deployed as their mean (docs/closed_loop.md, fifth session).
+    # fits, deployed as their mean (docs/closed_loop.md).
     "closed-loop+sobolev": {
         "sampler": "closed-loop",
         "sobolev_weight": 1.0,
@@ -82,13 +82,14 @@ METHODS: dict[str, dict[str, Any]] = {
     },
 }
 # Half of every closed-loop round's tails started from the states the collecting episodes visited (failed episodes
-# first) instead of from the planner's queries: DAgger's labels (twelfth session; alone not better: 2 seeds).
+# first) instead of from the planner's queries: DAgger's labels (alone not better than closed-loop+sobolev: 2 seeds,
+# docs/closed_loop.md).
 METHODS["closed-loop+visited"] = {**METHODS["closed-loop+sobolev"], "cl_visited_fraction": 0.5}
-# The twelfth session's recipe: closed-loop+visited, then the final refit fits 6 members and deploys the 3
-# whose MPC flies best on training starts: every 3-subset flies 100, the best 4 fly 300 more (refits of one buffer
-# differ by tens of points of closed-loop success; the selection costs no NLP solve, ~5-10 minutes with the
-# condensed MPC solver). The selection and the evaluation fly LimitedLookaheadMPC's default, on the acrobot the
-# condensed solver with extra starts where the plan's cost rises (multistart="rise", thirteenth session).
+# closed-loop+visited, then the final refit fits 6 members and deploys the 3 whose MPC flies best on training
+# starts: every 3-subset flies 100, the best 4 fly 300 more (refits of one buffer differ by tens of points of
+# closed-loop success; the selection costs no NLP solve, ~5-10 minutes with the condensed MPC solver). The
+# selection and the evaluation fly LimitedLookaheadMPC's default, on the acrobot the condensed solver with extra
+# starts where the plan's cost rises (multistart="rise").
 METHODS["closed-loop+select"] = {
     **METHODS["closed-loop+visited"],
     "refit_candidates": 6,
@@ -96,15 +97,15 @@ METHODS["closed-loop+select"] = {
     "select_finalists": 4,
     "select_final_episodes": 300,
 }
-# The fifteenth to seventeenth sessions' shipped recipe (2,000 solves): closed-loop+select with half of every
-# closed-loop round's episodes, and half of the selection's starts, drawn at rest (on the grid's slice of X0, random
-# draws, never its points): uniform draws over the 4-D X0 never start at rest, where the grid's failures lay.
-# 5 seeds: 98.75 % of the grid (median; closed-loop+select 95.75 %), 98 % held-out.
+# closed-loop+select at 2,000 solves with half of every closed-loop round's episodes, and half of the selection's
+# starts, drawn at rest (on the grid's slice of X0, random draws, never its points): uniform draws over the 4-D X0 never
+# start at rest, where the grid's failures lay. 5 seeds: 98.75 % of the grid (median; closed-loop+select 95.75 %), 98 %
+# held-out.
 METHODS["closed-loop+rest"] = {**METHODS["closed-loop+select"], "cl_slice_fraction": 0.5, "select_slice_fraction": 0.5}
-# The shipped recipe since the eighteenth session: closed-loop+rest scaled to 1,000 solves (its budget split kept:
-# half uniform draws, then 5 rounds from the "lqr"-guarded collector and 5 from the deployed one). 5 seeds from
-# scratch: 99.25 % of the grid (median), 99 % held-out, 221 s of solver time per network, where closed-loop+rest's
-# 2,000 solves gave 98.75 % / 98 % in 319 s: the same success with half the solves (docs/closed_loop.md).
+# The shipped recipe: closed-loop+rest scaled to 1,000 solves (its budget split kept: half uniform draws, then 5 rounds
+# from the "lqr"-guarded collector and 5 from the deployed one). 5 seeds from scratch: 99.25 % of the grid (median),
+# 99 % held-out, 221 s of solver time per network, where closed-loop+rest's 2,000 solves gave 98.75 % / 98 % in 319 s:
+# the same success with half the solves (docs/closed_loop.md).
 METHODS["closed-loop+rest-1000"] = {**METHODS["closed-loop+rest"], "cl_uniform_solves": 500, "cl_warmup_rounds": 5}
 
 #: Training settings every method shares in the full run (docs/closed_loop.md, "The training fix"): a 2 x 64
@@ -164,7 +165,7 @@ TASK_SHIPPED: dict[str, dict[str, Any]] = {
 #: The full run's budgets per task (snapshots of one run per method and seed; the largest is the shipped budget).
 #: The acrobot's shipped recipe spends 1,000 solves, and its split (500 uniform draws first) makes a snapshot below
 #: 1,000 a uniform+Sobolev network, so the full run trains to 1,000 only; the paper's samplers at 100-2,000 solves
-#: are the sixteenth session's stored evaluations (``--aggregate --compare``).
+#: are stored evaluations (``benchmarks/results/closed_loop_others``, aggregated with ``--aggregate --compare``).
 TASK_BUDGETS: dict[str, tuple[int, ...]] = {"acrobot": (1000,), "glider": (1000, 2000)}
 
 
@@ -184,7 +185,7 @@ class BenchConfig:
     trust_region: str = "none"
     jit: bool = True
     """Compile the deployed MPC: networks and ensembles enter it in their matrix form, compiled unexpanded in ~10 s
-    (the fifth session's scalar form of the 3-member ensemble was 30 MB of C that gcc did not finish)."""
+    (the scalar (SX) form of the 3-member ensemble expands to 30 MB of C, which gcc did not finish compiling)."""
     goal_blend: float = 1.0
     """``LimitedLookaheadMPC(goal_blend=...)`` of the deployed controller (0 = off; equilibrium goals only)."""
     methods: tuple[str, ...] = tuple(METHODS)

@@ -1,4 +1,4 @@
-"""Every controller of a task on the same starts, in one table (issue 12): what each cost to make and how it controls.
+"""Every controller of a task on the same starts, in one table: what each cost to make and how it controls.
 
 Usage::
 
@@ -139,7 +139,7 @@ def learned_row(task_name: str) -> dict[str, Any]:
 
 def sampler_rows(task_name: str, lat: np.ndarray | None = None) -> list[dict[str, Any]]:
     """One learned-MPC row per other sampler of ``closed_loop.json`` (uniform, SEAGuL, each with and without
-    Sobolev training; not the earlier closed-loop recipes compared there) at the largest budget it was run to: its
+    Sobolev training; not the other closed-loop recipes compared there) at the largest budget it was run to: its
     median success over seeds, and with ``lat`` the step latency of its representative network
     (``methods[m]["budgets"][b]["network"]``, the seed closest to the median) measured here, deployed as the
     shipped one."""
@@ -152,7 +152,7 @@ def sampler_rows(task_name: str, lat: np.ndarray | None = None) -> list[dict[str
         # each sampler at the largest budget it was run to (the paper's samplers: 2,000 solves, twice the acrobot's
         # shipped budget), where its seeds were evaluated on the whole grid and the held-out starts
         budgets = entry.get("budgets", {})
-        # the shipped method has its own row; earlier closed-loop recipes are history (docs/closed_loop.md)
+        # the shipped method has its own row; the other closed-loop recipes are its variants (docs/closed_loop.md)
         if method == block["method"] or method.startswith("closed-loop") or not budgets:
             continue
         budget = max(budgets, key=int)
@@ -294,9 +294,9 @@ def main(argv: list[str] | None = None) -> int:
         rows = [learned_row(args.task), *sampler_rows(args.task, None if args.quick else lat)]
         rows.append(measured_row(task, "LQR", PolicySpec("lqr", "lqr"), starts, n_grid, lat, None))
         if not args.quick:
-            # The closed-loop benchmark's evaluation of the full horizon on these very starts, when committed.
-            # (the glider's: its grid since the seventh session, its held-out starts since the eighteenth, 52 min)
-            stored = {"acrobot": "closed_loop_b2000", "glider": "closed_loop_glider"}.get(args.task)
+            # The closed-loop benchmark's evaluation of the full horizon on these very starts, when committed
+            # (the grid and the held-out starts; the glider's took 52 min).
+            stored = {"acrobot": "closed_loop_b1000_rest", "glider": "closed_loop_glider"}.get(args.task)
             stored_path = RESULTS / stored / "full-horizon.json" if stored else None
             spec = PolicySpec("full", "full")
             rows.append(measured_row(task, "full-horizon MPC", spec, starts, n_grid, lat, stored_path))

@@ -1,4 +1,4 @@
-"""Closed-loop benchmark of the limited-lookahead MPC against LQR and the full-horizon MPC (issue 5).
+"""Closed-loop benchmark of the limited-lookahead MPC against LQR and the full-horizon MPC.
 
 Usage::
 

@@ -1,4 +1,4 @@
-"""RL baselines on the MPCs' starts: SB3 PPO and SAC, learning curves over seeds, a small sweep (issue 12).
+"""RL baselines on the MPCs' starts: SB3 PPO and SAC, learning curves over seeds, a small sweep.
 
 Usage::
 
@@ -51,10 +51,10 @@ from benchmarks._common import machine  # noqa: E402
 from seagul_control.evaluation import heldout_starts  # noqa: E402
 from seagul_learn.baselines import ALGOS, SB3Config, ZeroPolicy, episode_stats, train_sb3  # noqa: E402
 
-#: What each point of a stored learning curve keeps (the distance and the miss since the nineteenth session).
+#: What each point of a stored learning curve keeps (the final distance and the miss let a later --update redraw it).
 CURVE_KEYS = ("env_steps", "wall_s", "success_rate", "mean_return", "mean_final_distance", "mean_miss")
 
-#: Environment steps of the full run (issue 12: PPO up to 2M on the acrobot, SAC ~300k; comparable on the glider).
+#: Environment steps of the full run per task and algorithm.
 FULL_STEPS: dict[str, dict[str, int]] = {
     "acrobot": {"PPO": 2_000_000, "SAC": 300_000},
     "glider": {"PPO": 1_200_000, "SAC": 300_000},
@@ -81,8 +81,8 @@ def env_id_of(task: str) -> str:
 SWEEP: dict[str, dict[str, list[Any]]] = {
     "PPO": {"learning_rate": [3e-4, 1e-3], "gamma": [0.98, 0.995], "net_arch": [(64, 64), (256, 256)]},
     # SAC's network is fixed at 256 x 256 (the zoo's 400 x 300 costs ~2x per gradient step); reward normalisation
-    # is swept instead (the zoo leaves it off for SAC; PPO always has it). Listed first, it varies slowest, so the
-    # first four settings (combo0-3) are the sweep's earlier runs without it.
+    # is swept instead (the zoo leaves it off for SAC; PPO always has it). Listed first, it varies slowest: the
+    # first four settings (combo0-3) are those without it, the same combos as a sweep without this axis.
     "SAC": {
         "normalize_reward": [False, True],
         "learning_rate": [3e-4, 7.3e-4],
@@ -168,8 +168,8 @@ def sweep(task: str, algo: str, budget: int, out: Path, workers: int, quick: boo
 def plot(task: str, per_algo: dict[str, list[dict[str, Any]]], floor: dict[str, float], path: Path) -> None:
     """Median and 25-75 % band over seeds of grid success, mean return and mean miss of the success rule (in units
     of its tolerances, :func:`seagul_learn.baselines.episode_stats`) against environment steps, the zero-input
-    policy's level beside each. Curves stored before the miss was kept (the thirteenth to eighteenth sessions'
-    runs) are left out of the miss panel, which is not drawn when no curve has it."""
+    policy's level beside each. Curves whose points lack the miss are left out of the miss panel, which is not
+    drawn when no curve has it."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -181,7 +181,7 @@ def plot(task: str, per_algo: dict[str, list[dict[str, Any]]], floor: dict[str, 
         ("mean_miss", "mean miss of the success rule (tolerances)"),
     ]
     if not any("mean_miss" in p for runs in per_algo.values() for r in runs for p in r["curve"]):
-        panels.pop()  # curves stored before the miss was kept: no empty panel
+        panels.pop()  # no curve has the miss: no empty panel
     fig, axes = plt.subplots(1, len(panels), figsize=(5.3 * len(panels), 4), sharex=True)
     colors = {algo: f"C{i}" for i, algo in enumerate(sorted(per_algo))}  # one colour per algorithm in every panel
     for algo, runs in per_algo.items():
@@ -304,7 +304,7 @@ def run_task(task: str, algos: list[str], args: argparse.Namespace, out: Path, s
 
 def _stored_curves(update: str | None, task: str, algos: list[str]) -> dict[str, list[dict[str, Any]]]:
     """The curves of the algorithms an ``--update`` keeps (those of ``task`` in the file that this run does not
-    train), in ``plot``'s form; an algorithm stored without curves (before they were kept) is left out."""
+    train), in ``plot``'s form; an algorithm stored without curves is left out."""
     if not update or not Path(update).is_file():
         return {}
     return _curves_of(json.loads(Path(update).read_text()).get(task, {}), skip=algos)

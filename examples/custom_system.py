@@ -31,8 +31,8 @@ acrobot's), ``tau = 3 s`` in 60 fixed steps of 0.05 s (2 RK4 substeps each), con
 profile's rule): at the end of the 3 s episode ``|th - pi| < 0.1 rad`` and ``|dth| < 0.5 rad/s`` with the cart still
 on the track. The example prints what it measured; the numbers are whatever this run gives, nothing is tuned to them.
 
-**Measured** (the full run ``python examples/custom_system.py``, sixth session, 2-core machine shared with three
-other jobs, ~20 min; every solver interpreted): one solve 0.15 s; 8 solves identical with 1 worker, 2 workers and 2
+**Measured** (the full run ``python examples/custom_system.py`` on a 2-core machine shared with three other jobs,
+~20 min; every solver interpreted): one solve 0.15 s; 8 solves identical with 1 worker, 2 workers and 2
 Ray actors. Training with the closed-loop sampler (the acrobot benchmark's recipe scaled down, see ``Config``): 500
 uniform solves, then 10 rounds of 50 tail problems at the MPC's planned terminal states (2 rounds collected with the
 ``"lqr"``-guarded MPC, then 8 with the unguarded MPC on a refit of the buffer), a 3-member refit ensemble at the
@@ -42,8 +42,8 @@ the default "lqr" guard succeeds from 25/25** (mean cost 15.1, 16 of 1,500 steps
 MPC from 25/25** (mean cost 13.99, the optimum); the MPC with the task's quadratic terminal cost alone and clipped
 LQR from 0/25. Unguarded, a network of the same recipe (a separate run of it) succeeds from 1/25 (mean cost 43;
 3/25 with a 20-step lookahead; 25/25 with the guard): the guard's ``l_f`` term holds the planner where the network
-is thin. Before the closed-loop sampler (100 adversarial
-solves, one network, validation ``mse_initial`` 0.24) the learned MPC succeeded from 0/25 with either guard.
+is thin. Trained with the adversarial sampler instead (100 solves, one network, validation ``mse_initial`` 0.24),
+the learned MPC succeeded from 0/25 with either guard.
 """
 
 from __future__ import annotations
