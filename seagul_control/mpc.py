@@ -31,7 +31,7 @@ glider's), ``"lqr"`` for a new task.
 * ``"lqr"``: ``Vhat + l_f``, i.e. the task's quadratic terminal cost (acrobot: the DARE matrix) as a
   prior under the network. It biases the cost upward but gives the terminal cost the right curvature at the goal,
   where a network fitted to values of 2-130 over wide swings is flattest and least accurate; measured on the
-  acrobot grid it was the only guard with which the learned MPC balanced (``docs/mpc.md``), as in the issue's trial.
+  acrobot grid it was the only guard with which the learned MPC balanced (``docs/mpc.md``).
 * ``"box"``: ``Vhat + w * sum_i ((x_n,i - clip(x_n,i, lo_i, hi_i)) / (hi_i - lo_i))^2``: zero inside the training
   box, a quadratic wall outside, so the optimizer cannot exploit the network where it never saw data. The box comes
   from the value function (``training_box()`` if it has one, else ``in_mean +- 2 in_std`` of its input

@@ -17,8 +17,8 @@ full-horizon problem) or a given constant (the MPC's control period).
 The terminal cost is a CasADi Function ``(x_n, tau_remaining, theta) -> scalar``; by default the task's ``l_f``.
 
 Speed: the NLP is built as an MX graph that *calls* the per-interval integrator (one small SX function), so its
-derivatives are per-stage functions too. By default (``codegen=False``) CasADi expands it to SX and interprets it,
-as before. With ``codegen=True`` the solver's functions (``nlp_f``, ``nlp_g``, their derivatives, ``nlp_hess_l``) are
+derivatives are per-stage functions too. By default (``codegen=False``) CasADi expands it to SX and interprets it.
+With ``codegen=True`` the solver's functions (``nlp_f``, ``nlp_g``, their derivatives, ``nlp_hess_l``) are
 generated as C once, compiled with the system C compiler into ``$SEAGUL_CACHE_DIR`` (default
 ``~/.cache/seagul/casadi``) under the task's fingerprint and a hash of the generated source
 (``<task>_<solver>_n<n>_<task fingerprint>_<source hash>.so``), and loaded from there: a new process with the same
@@ -178,8 +178,8 @@ def compile_nlp_library(
     names. Writes are atomic (temporary file then rename), so concurrent processes building the same problem are
     safe.
 
-    A library of an earlier version, named ``<name>_<hash>.so`` (no fingerprint), was compiled from the very same
-    source when its hash matches: it is hard-linked under the new name instead of compiled again.
+    A library named ``<name>_<hash>.so`` (built without a fingerprint) was compiled from the very same source when
+    its hash matches: it is hard-linked under the fingerprinted name instead of compiled again.
 
     Raises:
         RuntimeError: no C compiler, or the compilation failed.

@@ -122,7 +122,7 @@ class SB3Config:
     nothing follows the last step (Pardo et al. 2018, "Time Limits in Reinforcement Learning"). Gymnasium's
     ``truncated`` makes SB3 bootstrap ``gamma * Q(x_N)`` at an observation (time to go 0) that no transition ever
     starts from: with ``gamma = 0.995`` that extrapolation can stand for up to ``1 / (1 - gamma) = 200`` more steps.
-    ``False`` is what runs before the thirteenth session did."""
+    ``False`` is what a stored ``config.json`` without this field was trained with."""
     eval_every: int = 50_000
     """Environment steps between two points of the learning curve (0 = only at the end)."""
     eval_grid: int = 0

@@ -114,8 +114,8 @@ class ClosedLoopOptions:
     slice_fraction: float = 0.0
     """Share of each round's episode starts drawn on the evaluation grid's slice of X0
     (:func:`seagul_control.evaluation.sample_grid_slice`: the acrobot at rest), random draws, never the grid's points.
-    Uniform draws over the 4-D X0 almost never start at rest, where the grid's starts are. 0 draws exactly the
-    starts drawn before the option existed."""
+    Uniform draws over the 4-D X0 almost never start at rest, where the grid's starts are. 0: every start uniform
+    over X0 (exactly the uniform stream's draws)."""
 
     def __post_init__(self) -> None:
         if self.episodes < 1:
@@ -582,7 +582,7 @@ def select_members(
     episodes: the first stage's scores of the top subsets differ by less than their binomial noise (~2 points at 100
     episodes). Ties go to the first subset in lexicographic order. Model selection on training episodes by the metric
     that matters, at no NLP solve: refits of one buffer differ by tens of points of closed-loop success
-    (docs/closed_loop.md, twelfth session). ``slice_fraction`` of each stage's starts are drawn on the evaluation grid's
+    (docs/closed_loop.md). ``slice_fraction`` of each stage's starts are drawn on the evaluation grid's
     slice of X0 instead (``seagul_control.evaluation.sample_grid_slice``, streams ``[seed, 18]`` and ``[seed, 19]``):
     the acrobot's grid starts at rest, a 2-D slice that uniform draws over the 4-D X0 rarely come near.
     """

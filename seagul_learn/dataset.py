@@ -33,7 +33,7 @@ key                  shape / dtype   meaning
 ``knot_grad_theta``  (m+1, k)        ``dV_k/dtheta`` per knot
 ===================  ==============  ===============================================================
 
-Records written before robots were NLP parameters have no ``theta*`` keys and read as ``k = 0``.
+Records without ``theta*`` keys (files written by versions without robot parameters) read as ``k = 0``.
 
 Writes are atomic (:func:`seagul_control._io.atomic_write_bytes`): a record goes to a hidden temp file in
 ``records/``, is flushed and fsynced, then renamed over its final name (``os.replace``) and the directory is
@@ -64,7 +64,7 @@ FORMAT_TAG = "seagul-dataset"
 FORMAT_VERSION = 1
 _RECORD_RE = re.compile(r"^solve-(\d{6,})\.npz$")
 _OPTIONAL_KEYS = ("theta", "grad_theta", "knot_grad_theta")
-"""Record keys that files written before robots were NLP parameters do not have."""
+"""Record keys that files written by versions without robot parameters do not have."""
 
 
 class DatasetError(ValueError):
@@ -160,7 +160,7 @@ class SolveRecord:
         kwargs: dict[str, Any] = {}
         for f in fields(cls):
             if f.name in _OPTIONAL_KEYS and f.name not in data:
-                continue  # a record from before robots were NLP parameters: the task's own robot
+                continue  # a record without robot parameters: the task's own robot
             arr = data[f.name]
             if f.name in ("status", "sampler"):
                 kwargs[f.name] = str(arr[()])

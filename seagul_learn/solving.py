@@ -166,7 +166,7 @@ def solver_key(solver_options: dict[str, Any] | None, task: Task | str | None = 
     The fingerprint makes a cache (validation sets, cached solves) or a resumed run refuse results of an older
     optimizer after its code changed, instead of silently mixing the two. With ``task`` (a Task or a registered
     name) it is :func:`solver_fingerprint` of that task, so two tasks that differ in any parameter never share a key;
-    without it the key is the code's alone (as before; the caller must then keep tasks apart itself, e.g. by name).
+    without it the key is the code's alone (the caller must then keep tasks apart itself, e.g. by name).
     """
     return f"trajopt@{solver_fingerprint(task)}:" + json.dumps(solver_options or {}, sort_keys=True, default=str)
 

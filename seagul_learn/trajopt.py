@@ -120,7 +120,7 @@ class TrajOptConfig:
     ``solver_options`` sets its own); a fatrop attempt runs in a killable child (``Transcription(max_solve_time=)``,
     :mod:`seagul_control._watchdog`) and an overrun fails with status ``"timeout: ..."``, so the plan's next attempt
     takes over. fatrop's regularisation loop has no upper bound: one full solve from an adversarial start looped for
-    50 minutes inside fatrop and stopped a 2,000-solve training run (sixteenth session; docs/closed_loop.md)."""
+    50 minutes inside fatrop and stopped a 2,000-solve training run (docs/closed_loop.md)."""
     codegen: bool = True
     """Compile the NLP functions to C (cached on disk) when a compiler is available."""
     solver_options: tuple[tuple[str, Any], ...] = ()

@@ -373,7 +373,7 @@ class ValueNetwork(nn.Module):
                 nx=int(config["nx"]),
                 hidden=tuple(config["hidden"]),
                 task_name=str(payload["task_name"]),
-                n_params=int(config.get("n_params", 0)),  # files before networks over robots have none
+                n_params=int(config.get("n_params", 0)),  # files of networks without robot parameters have none
             )
             net.load_state_dict(payload["state_dict"])
         except Exception as exc:

@@ -3,7 +3,7 @@
 The options are derived from :class:`~seagul_learn.training.TrainConfig` (see :mod:`seagul_learn.commands._config`):
 one ``--field-name`` per field, typed by its annotation, defaulting to its default, helped by its docstring, so a new
 field needs no edit here. :func:`train_options` only adds validating parsers (whose errors name the accepted range),
-choices and the historical ``--sobolev`` spelling of ``--sobolev-weight``. ``--no-progress`` is the ``progress``
+choices and the ``--sobolev`` alias of ``--sobolev-weight``. ``--no-progress`` is the ``progress``
 field's negative form. ``--out`` and ``--resume`` are not config fields.
 
 ``--recipe`` chooses what the options that are not given take: ``task`` (default) the task's measured best
