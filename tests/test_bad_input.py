@@ -1,6 +1,6 @@
 """Bad input at every public entry point gets an error that NAMES the problem (and the accepted range, if any).
 
-Issue 7 item 1, in one place: task and env names, env actions and reset options (hypothesis over shapes and
+In one place: task and env names, env actions and reset options (hypothesis over shapes and
 values), solver inputs ``TrajectoryOptimizer.solve`` / ``solve_many`` (hypothesis; every generated input is invalid
 so no NLP is ever solved), MPC/LQR observations, ``tau``, horizons, budgets, network and dataset files, and the
 CLI. Each check matches the message text, not only the exception type.

@@ -1,5 +1,5 @@
 """The CLI options derived from the config dataclasses: every field reachable, typed, defaulted and helped by the
-dataclass; the historical spellings still parse."""
+dataclass; the established option spellings still parse."""
 
 from __future__ import annotations
 
@@ -26,7 +26,8 @@ from seagul_learn.training import TrainConfig
 
 ROOT = Path(__file__).resolve().parents[1]
 
-# Every option string of ``seagul train`` before the options were derived from TrainConfig.
+# Option strings of ``seagul train`` that scripts rely on: each stays accepted whatever the TrainConfig fields are
+# called.
 OLD_TRAIN_FLAGS = """--task --sampler --budget --seed --out --resume --sobolev --solves-per-round
 --train-steps-per-round --batch-size --newest-fraction --lr --hidden --ensemble --ensemble-pessimism
 --pretrain-solves --pretrain-steps
@@ -225,7 +226,7 @@ def test_derived_option_errors_name_the_spelling_used(argv, message, capsys):
 def _documented_train_flags() -> set[str]:
     """Every ``--flag`` of a ``seagul train`` command in the README and docs (continuation lines included)."""
     flags: set[str] = set()
-    for path in [ROOT / "README.md", *sorted((ROOT / "docs").glob("*.md"))]:
+    for path in [ROOT / "README.md", *sorted((ROOT / "docs").rglob("*.md"))]:
         text = path.read_text().replace("\\\n", " ")
         for line in text.splitlines():
             for command in re.findall(r"seagul train\b[^`\n]*", line):

@@ -306,8 +306,8 @@ def test_bench_aggregates_several_budgets_with_grid_only_rows_and_draws_the_curv
     flat = tmp_path / "flat"  # one budget's seed<N>.json directly in the folder: the budget comes with it
     flat.mkdir()
     (flat / "seed1.json").write_text(json.dumps({**grid_only, "success_rate": 0.1}))
-    label, spec = bench_mod.parse_compare(f"an earlier recipe={flat}@2000")
-    assert (label, spec) == ("an earlier recipe", (flat, 2000))
+    label, spec = bench_mod.parse_compare(f"closed-loop+rest-2000={flat}@2000")
+    assert (label, spec) == ("closed-loop+rest-2000", (flat, 2000))
     assert bench_mod.parse_compare("x=a/b")[1] == (Path("a/b"), None)
     for bad in ("no-label", "=dir", "x=dir@many"):
         with pytest.raises(ValueError, match="LABEL=DIR"):
@@ -357,7 +357,7 @@ def test_the_controller_table_has_a_row_per_learning_method_with_its_representat
         "uniform": {"budgets": {"300": low, **summary["uniform"]["budgets"]}},
     }
     methods["adversarial"] = {"budgets": {"300": low}}  # run to 300 solves only: its row is there
-    methods["closed-loop+select (an earlier recipe)"] = summary["uniform"]  # history, not a sampler's row
+    methods["closed-loop+select"] = summary["uniform"]  # another closed-loop recipe, not a sampler's row
     (results / "closed_loop.json").write_text(json.dumps({"acrobot": {**shipped, "methods": methods}}))
     monkeypatch.setattr(controllers, "RESULTS", results)
     row, other = controllers.sampler_rows("acrobot")
@@ -535,7 +535,7 @@ def test_grid_slice_starts_lie_on_the_evaluation_grids_slice_of_x0():
     task = make_task("acrobot")
     mixed = _selection_starts(task, 10, 4, 16, 18, 0.3)
     assert np.count_nonzero(np.all(mixed[:, 2:] == 0.0, axis=1)) == 3  # three on the slice, at rest
-    # fraction 0 draws exactly what the selection drew before the option existed
+    # fraction 0 draws exactly the uniform stream's starts
     np.testing.assert_array_equal(
         _selection_starts(task, 10, 4, 16, 18, 0.0), task.sample_x0(np.random.default_rng([4, 16]), 10)
     )
@@ -668,7 +668,7 @@ def test_the_tasks_recipe_is_what_the_benchmark_ships(monkeypatch, task_name):
 
 
 def test_the_shipped_recipe_is_the_2000_solve_one_with_its_budget_split_halved(monkeypatch):
-    """The shipped ``closed-loop+rest-1000`` differs from the 2,000-solve ``closed-loop+rest`` it replaced only in
+    """The shipped ``closed-loop+rest-1000`` differs from the 2,000-solve ``closed-loop+rest`` it scales down only in
     how its 1,000 solves split: the same fractions of uniform draws, guarded and deployed-collector rounds."""
     import importlib
     from pathlib import Path

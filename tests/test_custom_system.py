@@ -1,4 +1,4 @@
-"""A task that is not built in, through every layer (issue 11): the profile, the env checker, one solve, solve_many
+"""A task that is not built in, through every layer: the profile, the env checker, one solve, solve_many
 with 1 and 2 workers (and Ray), training and its exact resume, the MPC in closed loop, the closed-loop evaluation
 (API with 1 and 2 workers, and ``seagul evaluate --task file.py:factory``), the ``module:factory`` loader's errors;
 and a parameter variant of the acrobot that gets a validation set of its own.

@@ -1,6 +1,6 @@
 """Same seed and configuration -> identical datasets and network weights, whatever the number of workers.
 
-Issue 7 item 4, on the REAL trajectory optimizer (the toy-solver version lives in tests/test_training.py):
+On the REAL trajectory optimizer (the toy-solver version lives in tests/test_training.py):
 ``train`` with ``workers=1`` (solves in this process) and ``workers=2`` (a loky process pool, two solves per
 chunk) must store bit-identical records and end with bit-identical weights; ``solve_many`` must return
 bit-identical results for 1 and 2 workers. Only wall-clock times may differ.

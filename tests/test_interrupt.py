@@ -1,6 +1,6 @@
 """SIGKILL ``seagul train`` at several points, resume with ``--resume``: the result equals an uninterrupted run.
 
-Issue 7 item 3. The real CLI (``python -m seagul_learn.cli train``) and the real trajectory optimizer run in a
+The real CLI (``python -m seagul_learn.cli train``) and the real trajectory optimizer run in a
 subprocess; the test polls the run's ``dataset/records`` directory and kills the process (SIGKILL: no cleanup, no
 ``finally``) once the k-th record file has appeared, then resumes it. The final dataset (every array of every
 record but the wall-clock ``solve_time``), the network weights and the metrics (but ``wall_time``) must be

@@ -1,6 +1,6 @@
 """The Ray backend of ``solve_many``: bit-identical to the local backend, and a worker killed mid-solve is retried.
 
-Issue 7 item 5 (needs the optional extra: ``pip install 'seagul[ray]'``; skipped without it). A local Ray with two
+Needs the optional extra: ``pip install 'seagul[ray]'``; skipped without it. A local Ray with two
 CPUs stands in for a cluster. ``seagul_learn.parallel`` runs one ``_SolverActor`` per worker, declared with
 ``max_restarts=-1, max_task_retries=3``: when an actor's process dies, Ray restarts the actor and re-runs the chunk
 that was in flight (safe: a chunk's results depend only on its inputs). The test SIGKILLs an actor process while
@@ -8,7 +8,7 @@ it executes ``solve_chunk`` (Ray names the process ``ray::_SolverActor.solve_chu
 result still comes back, equal bit for bit to the local backend's; with the retry options switched off the same
 kill must lose the chunk (so the test can fail).
 
-Issue 11 item 6: the actors form one pool per process, created on the first Ray solve and reused by later calls
+The actors form one pool per process, created on the first Ray solve and reused by later calls
 (grown when a call asks for more workers, rebuilt after a new ``ray.init``); the tests count actor creations and
 compare actor ids and pids across calls, and a two-node cluster simulated with ``ray.cluster_utils.Cluster`` checks
 that the pool spreads over both nodes with results equal to the local backend's.

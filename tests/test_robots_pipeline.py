@@ -1,4 +1,4 @@
-"""Robots through the learning pipeline (issue 13, item 3): batch solvers, the runner, caches, datasets, training
+"""Robots through the learning pipeline: batch solvers, the runner, caches, datasets, training
 arrays, the Sobolev term in theta, and the uniform and adversarial samplers over ``X0 x Theta``."""
 
 from __future__ import annotations

@@ -1,4 +1,4 @@
-"""The learned MPC over robots (issue 13, item 5): planning for another robot without a rebuild."""
+"""The learned MPC over robots: planning for another robot without a rebuild."""
 
 from __future__ import annotations
 

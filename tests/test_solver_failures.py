@@ -1,6 +1,6 @@
 """Real solver failures are counted, stored with their status and never become training data.
 
-Issue 7 item 2, on the REAL trajectory optimizer (tests/test_dataset.py, test_samplers.py and test_training.py
+On the REAL trajectory optimizer (tests/test_dataset.py, test_samplers.py and test_training.py
 check the same bookkeeping with the toy solver's made-up failures). Failures are forced with IPOPT's own
 iteration limit (``max_iter=1``), so the statuses, the NaN value and the last-iterate arrays are what a genuine
 failure produces. Training runs the adversarial sampler with every ascent iterate failing: each chain must stop at

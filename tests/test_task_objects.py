@@ -1,4 +1,4 @@
-"""A Task object everywhere a name is accepted; caches keyed by the task's content (issue 11).
+"""A Task object everywhere a name is accepted; caches keyed by the task's content.
 
 ``solve_many`` and ``trajopt_batch_solver`` take a :class:`Task` (or a registered name, resolved once in the caller)
 and send the object itself to the workers, so a variant of the acrobot that keeps the name ``"acrobot"`` is solved
@@ -172,7 +172,7 @@ def test_solve_cache_keys_differ_between_the_variant_and_the_default(variant: Ta
     assert solver_key(None, variant) != solver_key(None, default)
     assert solver_key(None, "acrobot") == solver_key(None, default)  # a name stands for its registered task
     assert solver_key({"max_iter": 9}, variant) != solver_key(None, variant)
-    assert solver_key(None) == solver_key(None, None)  # without a task: the code's key, as before
+    assert solver_key(None) == solver_key(None, None)  # without a task: the code's key alone
     assert solver_fingerprint(variant) != solver_fingerprint(default) != solver_fingerprint()
 
     # The real batch solver carries its task, and the result cache keys by its fingerprint.
@@ -242,12 +242,12 @@ def test_compiled_solver_file_names_differ_between_two_variants(tmp_path: Path) 
     assert a.solve(x, 0.1).objective != pytest.approx(b.solve(x, 0.1).objective)
 
 
-def test_a_library_of_the_old_naming_is_linked_not_recompiled(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_an_unfingerprinted_library_is_linked_not_recompiled(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     if tr_mod.find_c_compiler() is None:
         pytest.skip("no C compiler")
     x = ca.MX.sym("x")
     solver = ca.nlpsol("tiny", "ipopt", {"x": x, "f": (x - 1) ** 2})
-    legacy = compile_nlp_library(solver, "tiny", tmp_path)  # no fingerprint: the earlier file name
+    legacy = compile_nlp_library(solver, "tiny", tmp_path)  # no fingerprint in the file name
     assert legacy.name.startswith("tiny_") and legacy.name.count("_") == 1
 
     def no_compiler(*args: Any, **kwargs: Any) -> Any:
