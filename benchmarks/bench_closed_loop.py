@@ -66,7 +66,7 @@ METHODS: dict[str, dict[str, Any]] = {
     # safer controller than the deployed one: its queries stay teachable); then 10 rounds at the queries of the
     # deployed controller itself (unguarded, blended), each collected with a refit of the buffer so far (the
     # network that would be deployed then: DAgger). Queries chosen at random. The final refit is an ensemble of 3
-    # fits, deployed as their mean (docs/closed_loop.md).
+    # fits, deployed as their mean (docs/experiments/closed-loop.md).
     "closed-loop+sobolev": {
         "sampler": "closed-loop",
         "sobolev_weight": 1.0,
@@ -83,7 +83,7 @@ METHODS: dict[str, dict[str, Any]] = {
 }
 # Half of every closed-loop round's tails started from the states the collecting episodes visited (failed episodes
 # first) instead of from the planner's queries: DAgger's labels (alone not better than closed-loop+sobolev: 2 seeds,
-# docs/closed_loop.md).
+# docs/experiments/closed-loop.md).
 METHODS["closed-loop+visited"] = {**METHODS["closed-loop+sobolev"], "cl_visited_fraction": 0.5}
 # closed-loop+visited, then the final refit fits 6 members and deploys the 3 whose MPC flies best on training
 # starts: every 3-subset flies 100, the best 4 fly 300 more (refits of one buffer differ by tens of points of
@@ -105,12 +105,12 @@ METHODS["closed-loop+rest"] = {**METHODS["closed-loop+select"], "cl_slice_fracti
 # The shipped recipe: closed-loop+rest scaled to 1,000 solves (its budget split kept: half uniform draws, then 5 rounds
 # from the "lqr"-guarded collector and 5 from the deployed one). 5 seeds from scratch: 99.25 % of the grid (median),
 # 99 % held-out, 221 s of solver time per network, where closed-loop+rest's 2,000 solves gave 98.75 % / 98 % in 319 s:
-# the same success with half the solves (docs/closed_loop.md).
+# the same success with half the solves (docs/experiments/closed-loop.md).
 METHODS["closed-loop+rest-1000"] = {**METHODS["closed-loop+rest"], "cl_uniform_solves": 500, "cl_warmup_rounds": 5}
 
-#: Training settings every method shares in the full run (docs/closed_loop.md, "The training fix"): a 2 x 64
-#: network, 50 solves and 1,000 Adam steps per round, labels capped at 50, extreme gradient labels dropped, the
-#: standardisation following the buffer, and a fresh 20 k-step refit on everything at the end.
+#: Training settings every method shares in the full run (docs/experiments/closed-loop.md, "A training fix and the goal
+#: blend"): a 2 x 64 network, 50 solves and 1,000 Adam steps per round, labels capped at 50, extreme gradient labels
+#: dropped, the standardisation following the buffer, and a fresh 20 k-step refit on everything at the end.
 FULL_TRAIN: dict[str, Any] = {
     "hidden": (64, 64),
     "solves_per_round": 50,
@@ -137,10 +137,10 @@ def _named(task: str, summary: dict[str, Any]) -> dict[str, Any]:
     return {(shipped_name(task) if k == SHIPPED else k): v for k, v in summary.items()}
 
 
-#: Per-task changes to :data:`FULL_TRAIN` and to the shipped recipe. The glider (docs/closed_loop.md, "The glider"):
-#: values of 40-1,000 on X0, so the cap sits above them; its tails impose the perch box and path bounds softly
-#: (``task.profile.solver``), so no tail fails; the closed loop collects with the deployed, unguarded MPC from the
-#: first round, and the network of the collector that flew best is shipped (``cl_keep_best``: the loop's last
+#: Per-task changes to :data:`FULL_TRAIN` and to the shipped recipe. The glider (docs/experiments/closed-loop.md, the
+#: glider's sections): values of 40-1,000 on X0, so the cap sits above them; its tails impose the perch box and path
+#: bounds softly (``task.profile.solver``), so no tail fails; the closed loop collects with the deployed, unguarded MPC
+#: from the first round, and the network of the collector that flew best is shipped (``cl_keep_best``: the loop's last
 #: network perched on a median of 63.9 % of the grid, the best collector's on 91.7 %, 5 seeds; a 20 k-step refit of
 #: the same 2,000 solves on 25 % where the loop's perched on 94 %, seed 0).
 TASK_TRAIN: dict[str, dict[str, Any]] = {"glider": {"value_cap": 1500.0, "refit_steps": 0}}

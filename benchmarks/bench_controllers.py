@@ -152,7 +152,8 @@ def sampler_rows(task_name: str, lat: np.ndarray | None = None) -> list[dict[str
         # each sampler at the largest budget it was run to (the paper's samplers: 2,000 solves, twice the acrobot's
         # shipped budget), where its seeds were evaluated on the whole grid and the held-out starts
         budgets = entry.get("budgets", {})
-        # the shipped method has its own row; the other closed-loop recipes are its variants (docs/closed_loop.md)
+        # the shipped method has its own row; the other closed-loop recipes are its variants
+        # (docs/experiments/closed-loop.md)
         if method == block["method"] or method.startswith("closed-loop") or not budgets:
             continue
         budget = max(budgets, key=int)

@@ -107,14 +107,14 @@ class ParamBenchConfig:
     solver: str = "ipopt"
     """The evaluated MPCs' solver. IPOPT with a wall-time limit per step (``max_step_time``) rather than the deployed
     default fatrop, which has looped without end inside one solve of the nominal MPC on a perturbed robot (over 35
-    minutes; fatrop has no wall-time limit, docs/closed_loop.md "A solver hang found on the way")."""
+    minutes; fatrop has no wall-time limit, docs/experiments/closed-loop.md, "fatrop hangs inside a solve")."""
     max_step_time: float = 5.0
     """IPOPT's ``max_wall_time`` per MPC step (s); a step that hits it falls back as any failed solve does."""
     closed_loop: bool = False
     """Also train and evaluate the closed-loop sampler over robots (``CLOSED_LOOP``; ``--closed-loop``)."""
     model_reference: bool = False
     """Also run the full-horizon MPC that plans with the model (slow: its solves on mismatched robots run into
-    their iteration limits; a pilot of 20 such episodes measured 10 % success, docs/spec.md §14.4)."""
+    their iteration limits; a pilot of 20 such episodes measured 10 % success, docs/reference/spec.md §14.4)."""
     train: dict[str, Any] = field(
         default_factory=lambda: {
             "hidden": (64, 64),

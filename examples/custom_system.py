@@ -1,4 +1,4 @@
-"""Your own system, end to end: a cart-pole swing-up defined with seagul's public API only (docs/custom_system.md).
+"""Your own system, end to end: a cart-pole swing-up with seagul's public API only (docs/tutorials/custom-system.md).
 
 Run (from the repository root)::
 
@@ -235,7 +235,8 @@ def main(cfg: Config) -> None:
     solver_options = {"codegen": False}  # interpreted solvers: no C compilation anywhere in this example
 
     # 1. The env: observation = state + time to go, reward = minus the running cost; Gymnasium's checker. The action
-    #    box is in newtons (the built-in envs' choice, docs/spec.md §13), so its one recommendation is silenced.
+    #    box is in newtons (the built-in envs' choice, docs/reference/spec.md §13), so its one recommendation is
+    #    silenced.
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*symmetric and normalized space.*")
         check_env(make_env(task).unwrapped)

@@ -74,7 +74,7 @@ def main(cfg: Config) -> None:
 
     # 3. The network as terminal cost of a limited-lookahead MPC, in a plain Gymnasium loop.
     # A network of a few dozen solves sits on the task's quadratic terminal cost ("lqr"); the acrobot's default guard
-    # ("none") is for the shipped 2,000-solve networks (docs/closed_loop.md).
+    # ("none") is for the shipped 2,000-solve networks (docs/experiments/closed-loop.md).
     policy = LimitedLookaheadMPC(task, trained.network, horizon=cfg.horizon, trust_region="lqr")
     env = gym.make("SeagulAcrobot-v0")
     obs, info = env.reset(seed=cfg.seed)

@@ -2,9 +2,10 @@
 
 Why: the sampler-driven training fixes its output standardisation from the 10 pretraining solves, so closed-loop
 tail labels (values up to the cap, with large dual gradients) arrive many standard deviations out and wreck the fit
-(docs/closed_loop.md, finding 7). This script fits a fresh network to the whole dataset with the standardisation
-taken from all (capped) labels and the gradient labels whose standardised norm exceeds ``--grad-max`` dropped: the
-run's config with ``TrainConfig.refit_steps`` etc. overridden, fitted by :func:`seagul_learn.training.refit`.
+(docs/experiments/closed-loop.md, "Why the unguarded learned cost fails", point 7). This script fits a fresh network to
+the whole dataset with the standardisation taken from all (capped) labels and the gradient labels whose standardised
+norm exceeds ``--grad-max`` dropped: the run's config with ``TrainConfig.refit_steps`` etc. overridden, fitted by
+:func:`seagul_learn.training.refit`.
 
     python scripts/refit_value.py RUN --cap 50 --grad-max 10 --hidden 64,64 --steps 20000 --out refit.pt
 

@@ -7,7 +7,7 @@ iterations. IPOPT has ``max_wall_time``; fatrop has nothing equivalent, and a C 
 Python. So :class:`ForkedSolver` solves in one child process per user process, forked from it (the compiled solvers are
 inherited, nothing is rebuilt or pickled), sends it each call's arguments over a pipe and waits at most
 ``max_solve_time``; a call that takes longer kills the child and raises :class:`SolveTimeout`, and the next call
-forks a fresh child. The round trip costs tens of microseconds per call (measured in docs/mpc.md).
+forks a fresh child. The round trip costs tens of microseconds per call (measured in docs/experiments/mpc.md).
 
 POSIX only (``os.fork``); elsewhere the solver is called directly and the guard is off, with a warning.
 """

@@ -1,4 +1,4 @@
-"""Online estimates of a robot's physical parameters from its observed transitions (docs/spec.md §14).
+"""Online estimates of a robot's physical parameters from its observed transitions (docs/reference/spec.md §14).
 
 A controller that meets a robot other than its model (``Task.parameters``: masses, lengths, damping, areas) can
 plan for an estimate of the true ``theta`` instead of the nominal one. :class:`ParameterEstimator` fits ``theta``

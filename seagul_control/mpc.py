@@ -25,13 +25,13 @@ architecture (:meth:`LimitedLookaheadMPC.set_value_function`) never rebuilds a s
 never negative) in each of them.
 
 The default is the task's ``profile.mpc_trust_region``: ``"none"`` for the acrobot and the glider, whose shipped
-networks are selected and measured unguarded (docs/closed_loop.md: 98.75 % of the acrobot grid, 91.7 % of the
-glider's), ``"lqr"`` for a new task.
+networks are selected and measured unguarded (docs/experiments/closed-loop.md: 98.75 % of the acrobot grid, 91.7 % of
+the glider's), ``"lqr"`` for a new task.
 
 * ``"lqr"``: ``Vhat + l_f``, i.e. the task's quadratic terminal cost (acrobot: the DARE matrix) as a
   prior under the network. It biases the cost upward but gives the terminal cost the right curvature at the goal,
   where a network fitted to values of 2-130 over wide swings is flattest and least accurate; measured on the
-  acrobot grid it was the only guard with which the learned MPC balanced (``docs/mpc.md``).
+  acrobot grid it was the only guard with which the learned MPC balanced (``docs/experiments/mpc.md``).
 * ``"box"``: ``Vhat + w * sum_i ((x_n,i - clip(x_n,i, lo_i, hi_i)) / (hi_i - lo_i))^2``: zero inside the training
   box, a quadratic wall outside, so the optimizer cannot exploit the network where it never saw data. The box comes
   from the value function (``training_box()`` if it has one, else ``in_mean +- 2 in_std`` of its input
@@ -46,8 +46,8 @@ network's small first-order error there otherwise shifts the closed loop's resti
 ``b l_f + (1 - b) Vhat`` with ``b = exp(-l_f / c)``. Near an equilibrium goal ``l_f`` (the DARE quadratic of the
 transcription's own linearisation) *is* the value to second order (measured on the acrobot: ``V = l_f`` while
 ``l_f <~ 1``), while a network fitted to values up to tens errs there by more than ``V`` itself, so the closed loop
-would settle next to the goal instead of on it (docs/closed_loop.md). Away from the goal (``l_f >> c``) the network
-is untouched. The blend is applied to the guarded learned cost, before the end-of-episode switch.
+would settle next to the goal instead of on it (docs/experiments/closed-loop.md). Away from the goal (``l_f >> c``) the
+network is untouched. The blend is applied to the guarded learned cost, before the end-of-episode switch.
 
 **Speed.** The default solver is CasADi's ``fatrop`` (the transcription orders variables and constraints stage by
 stage); with ``jit=True`` (default) the NLP functions are compiled to C once and the object file is cached on disk
@@ -577,7 +577,7 @@ class LimitedLookaheadMPC(_MPCBase):
         solver: ``"shooting"``, ``"fatrop"`` or ``"ipopt"``. ``"shooting"`` condenses the lookahead to its inputs
             and solves it by projected Newton (:mod:`seagul_control.shooting`; fixed steps and input bounds only; a
             value network enters through its hand-derived Taylor forms): the same NLP, measured ~10x faster per
-            step than fatrop on the acrobot with the shipped 3 x (2 x 64) ensemble (docs/mpc.md). Default
+            step than fatrop on the acrobot with the shipped 3 x (2 x 64) ensemble (docs/experiments/mpc.md). Default
             (:meth:`default_solver`): ``"shooting"`` where it applies (the acrobot), else fatrop (IPOPT with free
             steps).
         jit: compile the NLP functions (cached on disk) when a C compiler exists.
@@ -626,8 +626,8 @@ class LimitedLookaheadMPC(_MPCBase):
             warm start stays in its basin): ``"rise"`` (default with ``solver="shooting"``) at a cold start and
             whenever the warm-started plan costs more than the last step's plan (the warm basin has worsened),
             ``"always"`` every step, ``"never"`` (the only choice, and default, of the other solvers). Measured on
-            the acrobot's shipped network (docs/mpc.md): grid success 94.5 % -> 98.5 % with ``"rise"`` (extra starts
-            on ~5 % of steps) or ``"always"`` (~10x the step time).
+            the acrobot's shipped network (docs/experiments/mpc.md): grid success 94.5 % -> 98.5 % with ``"rise"``
+            (extra starts on ~5 % of steps) or ``"always"`` (~10x the step time).
         multistart_starts: how many extra starts (2: both bounds).
 
     A value function over robots (``n_params > 0``, e.g. a network trained with ``TrainConfig.model_params``) is
@@ -811,8 +811,8 @@ class LimitedLookaheadMPC(_MPCBase):
 
     def default_solver(self, free_time: bool) -> SolverName:
         """``"shooting"`` for a short fixed-step lookahead of a task with input bounds only (the acrobot: the same
-        NLP ~10x faster per step, docs/mpc.md), else as :meth:`_MPCBase.default_solver` (fatrop; IPOPT for free
-        time)."""
+        NLP ~10x faster per step, docs/experiments/mpc.md), else as :meth:`_MPCBase.default_solver` (fatrop; IPOPT for
+        free time)."""
         from seagul_control.shooting import condensation_problems
 
         # The lookahead never imposes the terminal box (final_box=False) and has hard bounds.

@@ -29,7 +29,7 @@ first-order conditions as the lifted NLP's; the states, the defects' multipliers
 ``dV/dp`` (envelope theorem: the bounds do not depend on ``p``) come from one more compiled call.
 
 Python overhead dominates: a step of the acrobot's 5-step MPC with a 3 x (2 x 64) ensemble costs a few compiled
-calls of ~0.05 ms each, against fatrop's ~1.1 ms per iteration on the lifted 30-variable NLP (docs/mpc.md).
+calls of ~0.05 ms each, against fatrop's ~1.1 ms per iteration on the lifted 30-variable NLP (docs/experiments/mpc.md).
 Each solve is bounded (``max_iter`` iterations of at most ``max_backtracks`` function evaluations), so it needs no
 watchdog; ``max_solve_time`` is checked between iterations.
 """

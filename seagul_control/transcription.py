@@ -23,8 +23,8 @@ generated as C once, compiled with the system C compiler into ``$SEAGUL_CACHE_DI
 ``~/.cache/seagul/casadi``) under the task's fingerprint and a hash of the generated source
 (``<task>_<solver>_n<n>_<task fingerprint>_<source hash>.so``), and loaded from there: a new process with the same
 problem only regenerates the source (~0.1 s) and loads the library. Without a compiler it falls back to the
-interpreted solver with a warning. Measured gains are in docs/trajopt.md. This module is the one home of compiled
-CasADi code: the MPC's JIT options (:func:`jit_solver_options`) use the same cache directory
+interpreted solver with a warning. Measured gains are in docs/experiments/trajopt.md. This module is the one home of
+compiled CasADi code: the MPC's JIT options (:func:`jit_solver_options`) use the same cache directory
 (:func:`codegen_cache_dir`, i.e. :func:`seagul_control._io.cache_dir`) and compiler lookup.
 
 Wall time: ``max_solve_time`` bounds one solve. IPOPT stops itself (``ipopt.max_wall_time``); fatrop cannot (its
@@ -66,7 +66,7 @@ TimeMode = Literal["equal", "at_most", "free"]
 SUCCESS_STATUSES = frozenset({"Solve_Succeeded", "Solved_To_Acceptable_Level", "Success"})
 
 #: Flags of the cached C compilation: ``-O1`` compiles the ~1.5 MB generated source in about half the time of
-#: ``-O2`` for the same solve speed (measured on the acrobot, docs/trajopt.md).
+#: ``-O2`` for the same solve speed (measured on the acrobot, docs/experiments/trajopt.md).
 CODEGEN_FLAGS: tuple[str, ...] = ("-O1", "-fPIC", "-shared")
 
 #: Fields of :meth:`Transcription.set` / :meth:`Transcription.get`: name -> (variable, role). Variables: ``"x"`` the

@@ -3,8 +3,8 @@
 A limited-lookahead MPC (paper Eq. 3) minimises ``sum_k h l(x_k, u_k) + Vhat(x_n, tau_n)``: its optimizer searches
 for terminal states where ``Vhat`` is low, so it finds the network's *under-estimates* wherever they are, including
 states that no uniform draw or validation set looks at. Validation accuracy then does not carry into control
-(docs/closed_loop.md shows the measurements). This sampler spends each round's solves where the deployed controller
-looks:
+(docs/experiments/closed-loop.md shows the measurements). This sampler spends each round's solves where the deployed
+controller looks:
 
 1. **Roll out the controller as deployed.** The current network drives a :class:`~seagul_control.LimitedLookaheadMPC`
    of the deployed class, horizon and guard (``trust_region``) in closed loop, in the task's Gymnasium env, from
@@ -102,8 +102,8 @@ class ClosedLoopOptions:
     solver: str = "ipopt"
     """Solver of the collecting MPC: the same NLP as deployed, solved by IPOPT with a wall-time limit per step
     (``max_step_time``). The deployed default, fatrop, looped without end inside single solves from shifted warm
-    starts at the extreme states closed-loop training visits (docs/closed_loop.md); ``"fatrop"`` collects with it
-    anyway."""
+    starts at the extreme states closed-loop training visits (docs/experiments/closed-loop.md); ``"fatrop"`` collects
+    with it anyway."""
     max_step_time: float = 5.0
     """IPOPT wall-time limit per collecting MPC step (s); a step that hits it falls back like any failed solve."""
     visited_fraction: float = 0.0
@@ -582,7 +582,7 @@ def select_members(
     episodes: the first stage's scores of the top subsets differ by less than their binomial noise (~2 points at 100
     episodes). Ties go to the first subset in lexicographic order. Model selection on training episodes by the metric
     that matters, at no NLP solve: refits of one buffer differ by tens of points of closed-loop success
-    (docs/closed_loop.md). ``slice_fraction`` of each stage's starts are drawn on the evaluation grid's
+    (docs/experiments/closed-loop.md). ``slice_fraction`` of each stage's starts are drawn on the evaluation grid's
     slice of X0 instead (``seagul_control.evaluation.sample_grid_slice``, streams ``[seed, 18]`` and ``[seed, 19]``):
     the acrobot's grid starts at rest, a 2-D slice that uniform draws over the 4-D X0 rarely come near.
     """

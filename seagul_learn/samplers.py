@@ -4,12 +4,12 @@ Both samplers draw their starting states from one :class:`StartPool`: the unifor
 given seed. The uniform sampler solves them in order; the adversarial sampler starts its chains from a random
 subset of them (paper §6: "taken from a randomly selected subset of the samples used by the baseline").
 
-**Time to go.** Uniform draws and chain starts use the task's nominal ``tau`` (docs/spec.md §4.5: uniform samples and
-validation use the nominal ``tau``; for the acrobot T0 is the single value 5 s anyway). The adversarial ascent
-moves ``tau`` inside T0 when T0 is an interval (``AdversarialOptions.ascend_tau``).
+**Time to go.** Uniform draws and chain starts use the task's nominal ``tau`` (docs/reference/spec.md §4.5: uniform
+samples and validation use the nominal ``tau``; for the acrobot T0 is the single value 5 s anyway). The adversarial
+ascent moves ``tau`` inside T0 when T0 is an interval (``AdversarialOptions.ascend_tau``).
 
-**Ascent step (paper Eq. 6, docs/spec.md §11.2).** For a solved iterate with value ``V`` and dual gradient ``dV/dx``
-(``dV/dtau``), and the network's ``Vhat`` and autograd ``dVhat/dx``, the gradient of ``1/2 (V - Vhat)^2`` is
+**Ascent step (paper Eq. 6, docs/reference/spec.md §11.2).** For a solved iterate with value ``V`` and dual gradient
+``dV/dx`` (``dV/dtau``), and the network's ``Vhat`` and autograd ``dVhat/dx``, the gradient of ``1/2 (V - Vhat)^2`` is
 ``g = (V - Vhat) (dV/dx - dVhat/dx)``. The ascent runs in box-normalised coordinates ``u = (x - low) / width``
 (coordinates whose X0 width is zero never move; ``tau`` is one more coordinate when it ascends), so
 ``g_u = g * width``. Rule ``"pga"``: ``du = step_fraction * g_u / max_j |g_u_j|`` — the coordinate with the
@@ -21,8 +21,8 @@ the box, so iterates do not pile up on the boundary). A chain stops after ``max_
 step is below ``eps`` (max-norm, in box widths), at its first failed solve (its earlier iterates are kept), and,
 with ``stop_on_decrease``, when an iterate's loss fell below its predecessor's (the step overshot a peak).
 
-**Over robots** (``TrainConfig.model_params``, docs/spec.md §14). The pool then also holds one robot ``theta`` per
-start, drawn uniformly from the task's box Theta (after the starts, from the same stream: the starts equal the
+**Over robots** (``TrainConfig.model_params``, docs/reference/spec.md §14). The pool then also holds one robot ``theta``
+per start, drawn uniformly from the task's box Theta (after the starts, from the same stream: the starts equal the
 nominal run's). The uniform baseline solves each start for its robot: uniform over ``X0 x Theta``. The adversarial
 ascent moves ``theta`` as more box-normalised coordinates (Theta's widths), with the loss gradient
 ``(V - Vhat) (dV/dtheta - dVhat/dtheta)`` from the dual ``SolveResult.grad_theta``, and projects onto Theta like x

@@ -2,8 +2,8 @@
 
 One run, for a :class:`TrainConfig`:
 
-1. **Validation set** (docs/spec.md §3.6/§4.6): the task's ``task.profile.validation_spec(task)``, solved once and
-   cached under ``cache_dir`` keyed by the task's fingerprint and the solver settings: acrobot a 10 x 10 grid over
+1. **Validation set** (docs/reference/spec.md §3.6/§4.6): the task's ``task.profile.validation_spec(task)``, solved once
+   and cached under ``cache_dir`` keyed by the task's fingerprint and the solver settings: acrobot a 10 x 10 grid over
    ``(th1, th2)`` at zero velocity plus 100 uniform draws from X0; glider a 6 x 6 x 6 grid over ``(x, z, dx)`` (other
    states 0) plus 250 uniform draws; a new task by default a 10 x 10 grid over two coordinates plus 100 draws; all at
    the nominal ``tau``. The random part uses a fixed seed, so every training seed is validated on the same set.
@@ -34,7 +34,7 @@ finite only enter the value term. ``w = 0`` is plain MSE.
 dropped), ``grad_label_max`` drops gradient labels whose standardised norm is extreme, and ``renormalize`` moves the
 standardisation to the whole buffer after each round's solves without changing the network's function
 (:meth:`ValueNetwork.renormalize`, PopArt). ``refit_steps`` finally fits a fresh network to the whole buffer
-(docs/closed_loop.md measures all four).
+(docs/experiments/closed-loop.md measures all four).
 
 **Metrics** (``metrics.json`` / ``metrics.csv``): after pretraining, after every round (and every ``eval_every``
 training steps if set): ``solves`` (budget solves so far), ``train_steps`` (after pretraining), ``mse_initial`` (the
@@ -192,7 +192,7 @@ class TrainConfig:
     kept as ``network_best.pt`` (with ``network_best.json``: its round, successes, solves) and becomes
     ``network.pt``, the loop's last network ``network_last.pt``; snapshots are the best so far. Model selection on
     training episodes: round-to-round closed-loop success swings widely (glider: 4 to 19 of 20 over 60 rounds of one
-    seed, docs/closed_loop.md). Needs the closed-loop sampler and ``refit_steps = 0``."""
+    seed, docs/experiments/closed-loop.md). Needs the closed-loop sampler and ``refit_steps = 0``."""
     value_cap: float = 0.0
     """Labels above this value are clipped to it and their gradient labels dropped (0 = off): a tail problem from
     a far-off query can cost 1e4 and would otherwise swamp the loss; the clipped label still says "expensive"."""
@@ -211,8 +211,8 @@ class TrainConfig:
     refit_ensemble: int = 0
     """Members of the final refit (0 or 1: one network; >= 2: a :class:`ValueEnsemble` of that many fits from their
     own initial weights, with ``ensemble_pessimism``). The members' errors are partly independent, so the planner
-    finds fewer under-estimates in their mean (docs/closed_loop.md); the loop's and the collecting refits' networks
-    stay single unless ``ensemble`` is set."""
+    finds fewer under-estimates in their mean (docs/experiments/closed-loop.md); the loop's and the collecting refits'
+    networks stay single unless ``ensemble`` is set."""
     refit_candidates: int = 0
     """Fit this many members in the final refit (``> refit_ensemble``) and deploy the ``refit_ensemble`` of them whose
     MPC (horizon ``cl_horizon``, guard ``cl_trust_region``) succeeds most often in closed loop from
@@ -237,13 +237,13 @@ class TrainConfig:
     uniform_tau: bool = False
     """Draw uniform starts' ``tau`` from T0 instead of using the nominal value."""
     model_params: bool = False
-    """Learn ``V(x, tau, theta)`` over robots (docs/spec.md §14): every start gets a robot ``theta`` drawn uniformly
-    from the task's box Theta (``Task.parameters``), each solve takes it as NLP parameters (one built optimizer for
-    all robots, with ``dV/dtheta`` from the duals), the network takes ``theta`` as inputs and is conditioned on the
-    task's own values, and the Sobolev term covers x and theta. The uniform sampler is then uniform over
-    ``X0 x Theta`` and the adversarial one ascends in theta as well (``adv_ascend_theta``); the validation set draws
-    its robots from Theta with a fixed seed. The closed-loop sampler then flies every episode on its own robot from
-    Theta with the deployed robust MPC (``model_params=True, estimate_robot=True``) and solves each tail for the
+    """Learn ``V(x, tau, theta)`` over robots (docs/reference/spec.md §14): every start gets a robot ``theta`` drawn
+    uniformly from the task's box Theta (``Task.parameters``), each solve takes it as NLP parameters (one built
+    optimizer for all robots, with ``dV/dtheta`` from the duals), the network takes ``theta`` as inputs and is
+    conditioned on the task's own values, and the Sobolev term covers x and theta. The uniform sampler is then uniform
+    over ``X0 x Theta`` and the adversarial one ascends in theta as well (``adv_ascend_theta``); the validation set
+    draws its robots from Theta with a fixed seed. The closed-loop sampler then flies every episode on its own robot
+    from Theta with the deployed robust MPC (``model_params=True, estimate_robot=True``) and solves each tail for the
     robot its plan was made for."""
     adv_ascend_theta: bool = True
     """Adversarial, with ``model_params``: ascend in the robot's parameters too (False: each chain keeps its
@@ -470,7 +470,8 @@ class TrainConfig:
 # ----------------------------------------------------------------------------------------------- validation set
 # ``ValidationSpec`` lives in seagul_envs.tasks.profile (imported above, so ``seagul_learn.training.ValidationSpec``
 # still works): each task's validation set is ``task.profile.validation_spec(task)``, the built-ins' set in their
-# task modules (docs/spec.md §3.6, §4.6). ``VALIDATION_SPECS`` remains as a deprecated view of the built-in tasks'.
+# task modules (docs/reference/spec.md §3.6, §4.6). ``VALIDATION_SPECS`` remains as a deprecated view of the built-in
+# tasks'.
 def __getattr__(name: str) -> Any:
     """``VALIDATION_SPECS``: a deprecated name-keyed view of the built-in tasks' validation sets."""
     if name == "VALIDATION_SPECS":

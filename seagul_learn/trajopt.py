@@ -2,14 +2,14 @@
 
 :class:`TrajectoryOptimizer` builds its transcription(s) once and reuses them for every solve. One solve from
 ``(x_init, tau)`` returns a :class:`~seagul_learn.results.SolveResult`: the value, ``dV/dx_init`` and ``dV/dtau``
-(parametric sensitivities ``-lam_p``, docs/spec.md §6.2) and one label per knot (state, time to go, cost to go,
-``dV_k/dx_k`` from the defect multipliers).
+(parametric sensitivities ``-lam_p``, docs/reference/spec.md §6.2) and one label per knot (state, time to go, cost to
+go, ``dV_k/dx_k`` from the defect multipliers).
 
 Robustness: a deterministic sequence of attempts (solver and initial guess) is tried until one succeeds, so the label
 of a start depends only on ``(x_init, tau)`` and the configuration, never on what was solved before (batch and
 parallel solving stay reproducible). The default plans (each task's ``task.profile.solver``) start with the fastest
 solver from a straight-line guess and end with IPOPT from "the goal everywhere"; see :class:`TrajOptConfig` and
-docs/trajopt.md.
+docs/experiments/trajopt.md.
 
 ``grad_tau`` of a fixed-step task (the acrobot, ``h = tau / m``) is the sensitivity of ``V`` to stretching every
 step; it is not the derivative of a free-final-time value and the acrobot's ``T0`` is a single value anyway.
@@ -89,7 +89,7 @@ class TrajOptConfig:
     multi_start: Literal["never", "on_suspect", "always"] | None = None
     """Also solve from every guess in ``multi_start_guesses`` (with the fallback solver) and keep the lowest value:
     ``"always"``; ``"on_suspect"`` when the first successful value exceeds ``suspect_value`` (a cheap guard against
-    poor local optima, docs/trajopt.md); ``"never"``. None: the task's default (``task.profile.solver``)."""
+    poor local optima, docs/experiments/trajopt.md); ``"never"``. None: the task's default (``task.profile.solver``)."""
     multi_start_guesses: tuple[str, ...] | None = None
     """Extra guesses of the multi-start (None: the task's default)."""
     suspect_value: float | None = None
@@ -120,7 +120,7 @@ class TrajOptConfig:
     ``solver_options`` sets its own); a fatrop attempt runs in a killable child (``Transcription(max_solve_time=)``,
     :mod:`seagul_control._watchdog`) and an overrun fails with status ``"timeout: ..."``, so the plan's next attempt
     takes over. fatrop's regularisation loop has no upper bound: one full solve from an adversarial start looped for
-    50 minutes inside fatrop and stopped a 2,000-solve training run (docs/closed_loop.md)."""
+    50 minutes inside fatrop and stopped a 2,000-solve training run (docs/experiments/closed-loop.md)."""
     codegen: bool = True
     """Compile the NLP functions to C (cached on disk) when a compiler is available."""
     solver_options: tuple[tuple[str, Any], ...] = ()
@@ -498,8 +498,8 @@ def integrator_error(task: Task, result: SolveResult, max_substep: float = 1e-4)
         ``max_state_error``: the integrator error, largest one-interval ``|x_{k+1} - Phi_fine(x_k, u_k, h_k)|_inf``
         (the defect the transcription's RK4 leaves against the true flow).
         ``cost_quadrature_rel_error``: the transcription's running cost (rectangle rule ``h_k l(x_k, u_k)``,
-        docs/spec.md §5.3) against the fine integral of ``l`` along each interval, ``|diff| / max(V, 1)`` (zero for
-        the glider, whose ``l`` depends on ``u`` only).
+        docs/reference/spec.md §5.3) against the fine integral of ``l`` along each interval, ``|diff| / max(V, 1)``
+        (zero for the glider, whose ``l`` depends on ``u`` only).
         ``replay_final_error``, ``replay_cost_rel_error``: open-loop replay of the inputs from ``x_init``. The
         acrobot's goal is unstable, so its 5 s replay drifts by construction even with an exact integrator: for
         information only.

@@ -5,10 +5,11 @@ The network maps ``z = ([x, tau] - in_mean) / in_std`` through ``tanh`` hidden l
 :meth:`ValueNetwork.set_normalization`), so a saved file is self-contained. Everything is float64: the MPC and the
 gradient checks need it.
 
-A network over robots, ``Vhat(x, tau, theta)`` (``n_params > 0``: the task's varying physical parameters, docs/spec.md
-§14), takes ``[x, tau, theta]``. Where ``theta`` is not given it uses its *condition* (:meth:`ValueNetwork.condition`,
-default the values it was built for): the robot an MPC plans for. The condition is the last entry block of the
-CasADi parameters, so an MPC built once re-plans for another robot (an estimate) with ``set_value_function`` alone.
+A network over robots, ``Vhat(x, tau, theta)`` (``n_params > 0``: the task's varying physical parameters,
+docs/reference/spec.md §14), takes ``[x, tau, theta]``. Where ``theta`` is not given it uses its *condition*
+(:meth:`ValueNetwork.condition`, default the values it was built for): the robot an MPC plans for. The condition is the
+last entry block of the CasADi parameters, so an MPC built once re-plans for another robot (an estimate) with
+``set_value_function`` alone.
 
 For NLPs the same network is available as a CasADi expression (:meth:`casadi_function`) whose parameters
 ``theta`` are the flattened normalisation and weights in a layout fixed by the architecture, so an MPC built once
@@ -400,8 +401,8 @@ class ValueEnsemble(nn.Module):
     the MPC optimises is ``m + beta * s`` with ``s = sqrt(mean_k (V_k - m)^2 + eps^2) - eps`` the (smoothed) spread
     over members and ``beta = pessimism`` an NLP parameter (the last entry of ``theta``). The members agree where
     the data are dense and disagree where a network extrapolates, which is where the MPC's optimizer finds
-    under-estimates (docs/closed_loop.md); the spread term makes those states expensive instead of attractive.
-    Members differ in their initial weights (and, in training, their minibatches).
+    under-estimates (docs/experiments/closed-loop.md); the spread term makes those states expensive instead of
+    attractive. Members differ in their initial weights (and, in training, their minibatches).
     """
 
     #: Smoothing of the spread (value units): keeps ``sqrt`` differentiable where all members agree.

@@ -1,11 +1,11 @@
-"""Dynamics of the envs against independent references (written here from docs/spec.md and first principles).
+"""Dynamics of the envs against independent references (written here from docs/reference/spec.md and first principles).
 
 * Acrobot: a numpy model derived from the Lagrangian (link kinematics -> M(q) = sum m J'J + I, Christoffel symbols
   and gravity by complex-step differentiation), not the manipulator-form formulas the Task types in; energy
   conservation with damping and input off; the power balance with them on; one control step against a tight
   ``solve_ivp`` reference; the MJCF's mass matrix, bias and control step against the analytic model.
-* Glider: docs/spec.md §4.2's equations retyped in numpy, and physical sanity (free fall at zero airspeed, pitch moment
-  signs of the elevator and the wing).
+* Glider: docs/reference/spec.md §4.2's equations retyped in numpy, and physical sanity (free fall at zero airspeed,
+  pitch moment signs of the elevator and the wing).
 """
 
 from __future__ import annotations
@@ -211,8 +211,8 @@ def test_acrobot_fast_states_need_finer_substeps() -> None:
 
 # ------------------------------------------------------------------------------------------------------ MuJoCo
 def test_mjcf_recipe() -> None:
-    """The MJCF choices of docs/spec.md §3.7: RK4, no contacts, an elbow motor with gear 1 and +-20 N m, damping b,
-    massless geoms."""
+    """The MJCF choices of docs/reference/spec.md §3.7: RK4, no contacts, an elbow motor with gear 1 and +-20 N m,
+    damping b, massless geoms."""
     model = AcrobotMujocoEnv().model
     p = make_task("acrobot").params
     assert model.opt.integrator == mujoco.mjtIntegrator.mjINT_RK4
@@ -293,10 +293,11 @@ def test_mujoco_episode_tracks_analytic_env() -> None:
 
 # ------------------------------------------------------------------------------------------------------ glider
 def glider_reference(x: np.ndarray, u: float) -> np.ndarray:
-    """docs/spec.md §4.2, retyped: flat-plate wing and elevator, F = rho S sin(alpha) |v|^2 normal to each plate."""
+    """docs/reference/spec.md §4.2, retyped: flat-plate wing and elevator, F = rho S sin(alpha) |v|^2 normal to each
+    plate."""
     S_w, S_e, l_w, l_h, l_e, inertia, mass, g, rho = 0.0885, 0.0147, 0.0, 0.27, 0.022, 0.0015, 0.08, 9.81, 1.204
     _, _, th, phi, dx, dz, dth = x
-    speed = lambda vx, vz: np.sqrt(vx * vx + vz * vz + 1e-6)  # noqa: E731 (docs/spec.md §4.2's smoothed |v|)
+    speed = lambda vx, vz: np.sqrt(vx * vx + vz * vz + 1e-6)  # noqa: E731 (docs/reference/spec.md §4.2's smoothed |v|)
     vwx, vwz = dx - l_w * dth * np.sin(th), dz + l_w * dth * np.cos(th)
     F_w = rho * S_w * (np.sin(th) * vwx - np.cos(th) * vwz) * speed(vwx, vwz)
     e = th + phi

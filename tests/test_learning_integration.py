@@ -24,7 +24,7 @@ def _batch_solver(task_name: str):
 
 
 def test_adversarial_step_increases_the_true_loss_on_the_acrobot():
-    """The dual gradient (docs/spec.md §6.2 sign convention) and autograd make Alg. 1 climb the real loss."""
+    """The dual gradient (docs/reference/spec.md §6.2 sign convention) and autograd make Alg. 1 climb the real loss."""
     task = make_task("acrobot")
     solve = _batch_solver("acrobot")
     rng = np.random.default_rng(0)

@@ -1,7 +1,7 @@
 """The wall-time guard of solves (``max_solve_time``): fatrop runs in a killable child, IPOPT stops itself.
 
 fatrop's regularisation loop has no upper limit and once looped without end inside one MPC step
-(docs/closed_loop.md, "A solver hang found on the way"). A solve that never returns is stood in for by a solver
+(docs/experiments/closed-loop.md, "fatrop hangs inside a solve"). A solve that never returns is stood in for by a solver
 that sleeps far longer than the limit: the guard must stop it within the limit, report it as a failed solve, and
 the next solve must work again (a fresh child).
 """

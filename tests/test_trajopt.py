@@ -147,7 +147,8 @@ def test_tail_optimizer_reproduces_labels(acrobot_result: SolveResult) -> None:
 @pytest.mark.parametrize("name", ["acrobot", "glider"])
 def test_integrator_error_is_small(name: str, acrobot_result: SolveResult, glider_result: SolveResult) -> None:
     """A fine RK4 (1e-4 s) from each knot with its input reproduces the next knot (4 RK4 substeps per 0.1 s acrobot
-    interval: ~1e-4; 2 substeps left ~4e-3) and the running cost up to the rectangle rule of docs/spec.md §5.3."""
+    interval: ~1e-4; 2 substeps left ~4e-3) and the running cost up to the rectangle rule
+    of docs/reference/spec.md §5.3."""
     from seagul_learn.trajopt import integrator_error
 
     r = acrobot_result if name == "acrobot" else glider_result

@@ -24,7 +24,7 @@ def test_interpreted_compiled_ipopt_and_fatrop_agree(name: str) -> None:
     assert ref.success
     # Same problem, same optimum: every variant starts from a perturbed copy of the reference solution. fatrop is
     # checked on the acrobot only: on the glider it needs the kinematic guess (even this guess stalls it at
-    # max_iter; docs/trajopt.md), which TrajectoryOptimizer supplies.
+    # max_iter; docs/experiments/trajopt.md), which TrajectoryOptimizer supplies.
     guess = ref.primal * (1 + 1e-3 * np.random.default_rng(0).standard_normal(ref.primal.size))
     variants = [("ipopt", False), ("ipopt", True)] + ([("fatrop", True)] if name == "acrobot" else [])
     sols = [

@@ -8,7 +8,7 @@ field's negative form. ``--out`` and ``--resume`` are not config fields.
 
 ``--recipe`` chooses what the options that are not given take: ``task`` (default) the task's measured best
 settings (``task.profile.train_recipe``, :meth:`~seagul_learn.training.TrainConfig.recipe`; the acrobot's and the
-glider's are the closed-loop recipes of docs/closed_loop.md), ``paper`` the dataclass defaults (the paper's
+glider's are the closed-loop recipes of docs/experiments/closed-loop.md), ``paper`` the dataclass defaults (the paper's
 settings: adversarial sampler, 1 x 32 tanh, 100 solves). Options given always win. The defaults the help shows are
 the dataclass's.
 """
