@@ -53,25 +53,29 @@ CURRENT: dict[str, tuple[str, str]] = {
     "closed_loop.json": (
         "closed-loop success per solve of every learning method (median of seeds per budget), the shipped "
         "method's block per task (network, deployment, step time, planner-query error)",
-        "python benchmarks/bench_closed_loop.py --aggregate DIR --update benchmarks/results/closed_loop.json",
+        "python benchmarks/bench_closed_loop.py --aggregate benchmarks/results/closed_loop_b1000_rest --compare ... "
+        "--update benchmarks/results/closed_loop.json (in full: docs/experiments/closed-loop.md)",
     ),
     "closed_loop_b1000_rest/": (
         "per-seed evaluations of the shipped acrobot recipe (closed-loop+rest-1000) and its selection logs",
-        "python benchmarks/bench_closed_loop.py --methods closed-loop+rest-1000 --budgets 1000 --seeds 5",
+        "python benchmarks/bench_closed_loop.py --tasks acrobot --methods closed-loop+rest-1000 --budgets 1000 "
+        "--seed-list 0,1,2,3,4",
     ),
     "closed_loop_b2000_rest/": (
         "per-seed evaluations of the same recipe at 2,000 solves (closed-loop+rest-2000)",
-        "python benchmarks/bench_closed_loop.py --methods closed-loop+rest --budgets 2000 --seeds 5",
+        "python benchmarks/bench_closed_loop.py --tasks acrobot --methods closed-loop+rest --budgets 2000 "
+        "--seed-list 0,1,2,3,4",
     ),
     "closed_loop_others/": (
         "per-seed evaluations of the paper's samplers (uniform, adversarial, each with and without Sobolev) on the "
         "acrobot at 100-2,000 solves",
-        "python benchmarks/bench_closed_loop.py --methods uniform adversarial uniform+sobolev adversarial+sobolev",
+        "python benchmarks/bench_closed_loop.py --tasks acrobot --methods uniform,adversarial,uniform+sobolev,"
+        "adversarial+sobolev --budgets 100,300,1000,2000 --seed-list 0,1,2,3,4",
     ),
     "closed_loop_glider/": (
         "the glider's shipped method (keep-best), its last-network variant to 5,000 solves, the paper's samplers "
         "to 5,000 solves, and the full-horizon evaluation",
-        "python benchmarks/bench_closed_loop.py --task glider ...",
+        "python benchmarks/bench_closed_loop.py --tasks glider ... (in full: docs/experiments/closed-loop.md)",
     ),
     "mpc_solvers_acrobot.json": (
         "the acrobot lookahead on the condensed solver (with and without extra starts) against fatrop",
@@ -88,12 +92,17 @@ CURRENT: dict[str, tuple[str, str]] = {
     ),
     "rl_baselines.json": (
         "SB3 PPO and SAC per task: success, learning curves, sweep, models",
-        "python benchmarks/bench_rl_baselines.py --task acrobot|glider",
+        "python benchmarks/bench_rl_baselines.py --tasks acrobot|glider --update benchmarks/results/rl_baselines.json "
+        "(settings per run: docs/experiments/rl-baselines.md)",
     ),
-    "rl_sweep.json": ("the hyperparameter sweep of the RL baselines", "python benchmarks/bench_rl_baselines.py --sweep"),
+    "rl_sweep.json": (
+        "the hyperparameter sweep of the RL baselines",
+        "python benchmarks/bench_rl_baselines.py --sweep",
+    ),
     "rl_glider_early.json": (
         "the glider's RL curves over their first steps (PPO to 300 k, SAC to 40 k)",
-        "python benchmarks/bench_rl_baselines.py --task glider",
+        "python benchmarks/bench_rl_baselines.py --tasks glider --steps glider:PPO=300000,glider:SAC=40000 ... "
+        "(in full: docs/experiments/rl-baselines.md)",
     ),
     "sample_efficiency_acrobot_20seeds.json": (
         "the paper's metric: validation error of SEAGuL against uniform sampling, 20 paired seeds, 5,000 steps",
@@ -151,7 +160,9 @@ ARCHIVED: dict[str, str] = {
     "closed_loop_visited_b2000/": (
         "closed-loop sampler with visited-state tails and no selection; the basis of closed-loop+select"
     ),
-    "rl_baselines_zoo_defaults.json": "RL baselines with rl-zoo's settings unchanged, before the sweep of rl_sweep.json",
+    "rl_baselines_zoo_defaults.json": (
+        "RL baselines with rl-zoo's settings unchanged, before the sweep of rl_sweep.json"
+    ),
     "rl_curves_acrobot_sac.png": "acrobot SAC curves alone; rl_curves_acrobot.png draws both algorithms",
     "rl_curves_glider_ppo.png": "glider PPO curves alone; rl_curves_glider.png draws both algorithms",
     "networks/": "networks of the superseded recipes and of the non-median seeds of the 2,000-solve recipes",
@@ -260,7 +271,7 @@ def _starts(data: Mapping[str, Any]) -> str:
     return f"{grid}, 100 held-out starts"
 
 
-# ---------------------------------------------------------------------------------------------------- docs/results
+# ------------------------------------------------------------------------------------------------- the results page
 def section_controllers() -> str:
     out = ["## Every controller on the same starts", ""]
     out.append(
@@ -273,8 +284,9 @@ def section_controllers() -> str:
                         ("glider", "Glider (perching)")):
         data = load(f"controllers_{task}.json")
         out += ["", f"### {title}", "", table([*CONTROLLER_HEADER, "source"], controller_rows(task, brief=False))]
-        out += ["", f"Command: `{CURRENT[f'controllers_{task}.json'][1]}` -> `benchmarks/results/controllers_{task}"
-                f".json` ({machine_line(data.get('machine'))})."]
+        source = f"benchmarks/results/controllers_{task}.json"
+        out += ["", f"Command: `{CURRENT[f'controllers_{task}.json'][1]}` -> `{source}` "
+                f"({machine_line(data.get('machine'))})."]
     out += ["", "![success against step time](figures/results/controllers.png)"]
     return "\n".join(out)
 
@@ -304,8 +316,9 @@ def section_success_per_solve() -> str:
             "",
             f"Shipped: `{block['method']}` at {block['budget']:,} solves, {block['seeds']} seeds: "
             f"{pct(block['success_rate'])} of the {block['grid']} grid and {pct(block['heldout_success_rate'])} "
-            f"of {block['heldout_starts']} held-out starts; the full-horizon MPC {pct(block['full_horizon_success_rate'])}"
-            f" / {pct(block['full_horizon_heldout_success_rate'])}. Deployed as a {block['horizon']}-step "
+            f"of {block['heldout_starts']} held-out starts; the full-horizon MPC "
+            f"{pct(block['full_horizon_success_rate'])} / {pct(block['full_horizon_heldout_success_rate'])}. "
+            f"Deployed as a {block['horizon']}-step "
             f"`LimitedLookaheadMPC` (trust region `{block['trust_region']}`, goal blend {block['goal_blend']}), "
             f"{ms(block['median_ms'])} ms median / {ms(block['p95_ms'])} ms p95 per step over "
             f"{block['timed_steps']:,} steps. Error of the value at the planner's queries: median "
@@ -458,7 +471,8 @@ def results_index() -> str:
     listed = {n.rstrip("/") for n in CURRENT} | set(CURRENT_FIGURES) | {"README.md", "archive"}
     missing = sorted(p.name for p in RESULTS.iterdir() if p.name not in listed)
     if missing:
-        raise SystemExit(f"make_results: result files not in the index (add them to CURRENT or archive them): {missing}")
+        raise SystemExit(f"make_results: result files not in the index (add them to CURRENT or archive them): "
+                         f"{missing}")
     return "\n".join(lines) + "\n"
 
 
@@ -578,6 +592,10 @@ def outputs() -> dict[Path, Callable[[str], str]]:
     }
 
 
+def _shown(path: Path) -> str:
+    return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--check", action="store_true", help="fail if a generated file is not up to date")
@@ -588,7 +606,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         old = path.read_text() if path.exists() else ""
         new = make(old)
         if new != old:
-            stale.append(path.relative_to(ROOT))
+            stale.append(_shown(path))
             if not args.check:
                 path.write_text(new)
     if args.check:
@@ -598,7 +616,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 0
     if args.figures:
         for path in draw_figures():
-            print(f"drew {path.relative_to(ROOT)}")
+            print(f"drew {_shown(path)}")
     for path in stale:
         print(f"wrote {path}")
     return 0

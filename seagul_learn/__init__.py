@@ -3,7 +3,13 @@
 from __future__ import annotations
 
 import importlib
+from importlib.metadata import PackageNotFoundError, version
 from typing import Any
+
+try:
+    __version__ = version("seagul")
+except PackageNotFoundError:  # imported from a source tree that was never installed
+    __version__ = "0+unknown"
 
 # Public names, imported lazily so that `import seagul_learn` stays cheap (no torch or solver stack until used).
 _LAZY: dict[str, str] = {

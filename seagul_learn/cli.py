@@ -65,6 +65,9 @@ def build_parser(commands: Sequence[Command] | None = None) -> argparse.Argument
         prog="seagul",
         description="Learn value functions from trajectory optimization with adversarial sampling (SEAGuL).",
     )
+    from seagul_learn import __version__
+
+    parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for command in commands if commands is not None else discover_commands():
         p = sub.add_parser(command.name, help=command.help, description=command.help)

@@ -51,6 +51,18 @@ def test_generate_num_requires_out(capsys):
     assert "--out is required with --num" in capsys.readouterr().err
 
 
+def test_version_is_the_installed_package_version(capsys):
+    """``seagul --version`` prints the version pip installed (pyproject's), the one CHANGELOG.md's newest entry has."""
+    import tomllib
+    from pathlib import Path
+
+    with pytest.raises(SystemExit) as exc:
+        main(["--version"])
+    assert exc.value.code == 0
+    declared = tomllib.loads((Path(__file__).resolve().parents[1] / "pyproject.toml").read_text())["project"]["version"]
+    assert capsys.readouterr().out.strip() == f"seagul {declared}"
+
+
 def test_commands_are_discovered_from_the_commands_package():
     names = [c.name for c in discover_commands()]
     assert {"generate", "train"} <= set(names) and names == sorted(names)
