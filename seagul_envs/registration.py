@@ -1,5 +1,15 @@
 """Gymnasium registration: the built-in env ids (idempotent; Gymnasium 1.x has no plugin entry points) and
-:func:`register_task`, which adds a user's task to :func:`~seagul_envs.tasks.make_task` and to ``gym.make``."""
+:func:`register_task`, which adds a user's task to :func:`~seagul_envs.tasks.make_task` and to ``gym.make``.
+
+Every seagul id is registered with ``max_episode_steps`` computed from its task: the longest admissible episode at
+the task's control period, ``ceil(max T0 / control_period)``
+(:func:`~seagul_envs.envs.base.longest_episode_steps`). The envs truncate themselves when the time to go reaches 0,
+and an episode may be reset with any time to go in ``(0, max T0]``; a ``TimeLimit`` of the nominal episode
+(``tau_nominal / control_period``) would cut the longer ones before their end and drop their terminal cost. With
+the longest one, ``gym.make``'s ``TimeLimit`` and the env's own truncation end an episode of ``max T0`` on the same
+step, and a shorter episode ends earlier by the env alone. ``reward_threshold`` stays None (see
+:func:`register_envs`).
+"""
 
 from __future__ import annotations
 
@@ -12,6 +22,7 @@ from typing import Any
 import cloudpickle
 import gymnasium as gym
 
+from seagul_envs.envs.base import longest_episode_steps
 from seagul_envs.tasks import (
     _LOCK,
     BUILTIN_TASKS,
@@ -29,6 +40,13 @@ ENV_IDS: dict[str, str] = {
     "SeagulGlider-v0": "seagul_envs.envs.glider:GliderEnv",
 }
 
+ENV_TASKS: dict[str, str] = {
+    "SeagulAcrobot-v0": "acrobot",
+    "SeagulAcrobotMujoco-v0": "acrobot",
+    "SeagulGlider-v0": "glider",
+}
+"""The task each built-in id simulates; its ``max_episode_steps`` is computed from that task."""
+
 TASK_ENV_IDS: dict[str, str] = {}
 """Task name -> Gymnasium id, for the tasks registered with :func:`register_task` in this process."""
 
@@ -36,10 +54,24 @@ _TASK_NAME = re.compile(r"[a-z][a-z0-9]*(?:_[a-z0-9]+)*")
 
 
 def register_envs() -> None:
-    """Register every seagul env id once; calling it again is a no-op."""
+    """Register every seagul env id once; calling it again is a no-op.
+
+    ``max_episode_steps`` is the task's longest admissible episode (module docstring): 50 steps of 0.1 s for the
+    acrobot (T0 is the single value 5 s) and 34 steps of 25 ms for the glider (``tau_max = 0.85`` s; the nominal
+    0.8 s episode has 32 and ends by the env's own truncation). ``reward_threshold`` is None: success is a condition
+    on the final state (``task.profile.success``: the acrobot within 0.05 of upright, the glider on the perch
+    without a crash), not a return level, and the return (minus the trajectory cost) depends on the start, so no
+    single return separates success from failure.
+    """
     for env_id, entry_point in ENV_IDS.items():
         if env_id not in gym.registry:
-            gym.register(id=env_id, entry_point=entry_point, disable_env_checker=False)
+            gym.register(
+                id=env_id,
+                entry_point=entry_point,
+                max_episode_steps=longest_episode_steps(make_task(ENV_TASKS[env_id])),
+                reward_threshold=None,  # success is not a return level (see the docstring)
+                disable_env_checker=False,
+            )
 
 
 def task_env_id(name: str) -> str:
@@ -78,7 +110,9 @@ def register_task(name: str, factory: Callable[[], Task], *, overwrite: bool = F
     Afterwards ``seagul_envs.make_task(name)`` returns the task (built once, here, to check it; shared afterwards),
     ``available_tasks()`` lists it, and ``gym.make(id)`` / ``gym.make_vec(id, ...)`` make a
     :class:`~seagul_envs.envs.task_env.TaskEnv` of it (``gym.make(id, task=variant)`` takes a variant of the same
-    name). Registering the same factory again is a no-op, so a module may call this at import time.
+    name). Registering the same factory again is a no-op, so a module may call this at import time. The id's
+    ``max_episode_steps`` is the task's longest admissible episode, ``ceil(max T0 / control_period)``, so ``gym.make``'s
+    ``TimeLimit`` agrees with the env's own truncation; its ``reward_threshold`` is None.
 
     The registration lives in this process only. A worker process (multiprocessing, Ray, a ``spawn``/``forkserver``
     subprocess) that calls ``make_task(name)`` or ``gym.make(id)`` must import the module that calls
@@ -142,7 +176,13 @@ def register_task(name: str, factory: Callable[[], Task], *, overwrite: bool = F
         task = build_task(name, factory)  # raises before anything is registered
         _set_factory(name, factory, task)
         gym.registry.pop(env_id, None)  # ours (overwrite) or, with overwrite=True, someone else's
-        gym.register(id=env_id, entry_point=TaskEnvCreator(name, factory), disable_env_checker=False)
+        gym.register(
+            id=env_id,
+            entry_point=TaskEnvCreator(name, factory),
+            max_episode_steps=longest_episode_steps(task),
+            reward_threshold=None,  # a task's success is its SuccessRule on the final state, not a return level
+            disable_env_checker=False,
+        )
         TASK_ENV_IDS[name] = env_id
     return env_id
 

@@ -184,7 +184,8 @@ def test_episode_return_is_minus_trajectory_cost(env_id: str, tau_steps: float |
 
 @pytest.mark.parametrize("env_id", IDS)
 def test_dt_override_and_exact_step_count(env_id: str) -> None:
-    env = _make(env_id, dt=0.005)
+    # max_episode_steps=-1: no TimeLimit (the registered one counts default control periods); the env alone ends it.
+    env = _make(env_id, dt=0.005, max_episode_steps=-1)
     assert env.unwrapped.dt == 0.005
     _, info = env.reset(seed=0)
     n = round(info["time_to_go"] / 0.005)
@@ -197,6 +198,28 @@ def test_dt_override_and_exact_step_count(env_id: str) -> None:
         assert truncated == (k == n)
     with pytest.raises(ValueError, match="dt must be a positive"):
         _make(env_id, dt=-0.1)
+
+
+@pytest.mark.parametrize(("name", "u"), [("acrobot", 0.0), ("glider", -1.0)])  # the glider flies 0.85 s at -1 rad/s
+def test_make_env_fits_the_time_limit_to_dt(name: str, u: float) -> None:
+    """``make_env`` counts the ``TimeLimit`` in the env's own control periods; ``gym.make`` keeps the registered one
+    (default periods), and a caller's ``max_episode_steps`` wins."""
+    task = seagul_envs.make_task(name)
+    env_id = str(task.profile.env_id)
+    registered = gym.spec(env_id).max_episode_steps
+    assert registered == int(np.ceil(task.tau_range[1] / task.control_period - 1e-9))
+    assert seagul_envs.make_env(task).spec.max_episode_steps == registered  # exactly gym.make(env_id)
+    dt = task.control_period / 4
+    env = seagul_envs.make_env(task, dt=dt)
+    assert env.spec.max_episode_steps == 4 * registered and _make(env_id, dt=dt).spec.max_episode_steps == registered
+    assert seagul_envs.make_env(task, dt=dt, max_episode_steps=7).spec.max_episode_steps == 7
+    # The longest episode at the finer period runs to its end: truncated by the env and the TimeLimit together.
+    env.reset(seed=0, options={"state": task.x0_low, "time_to_go": task.tau_range[1]})
+    action = np.full(env.action_space.shape, u, np.float32)
+    for k in range(1, 4 * registered + 1):
+        _, _, terminated, truncated, info = env.step(action)
+        assert not terminated and truncated == (k == 4 * registered)
+    assert info["time_to_go"] == 0.0
 
 
 @pytest.mark.parametrize("env_id", IDS)

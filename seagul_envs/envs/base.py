@@ -1,4 +1,4 @@
-"""Shared machinery of the seagul Gymnasium envs (docs/spec.md §7).
+"""Shared machinery of the seagul Gymnasium envs (docs/reference/spec.md §7).
 
 Every env simulates one :class:`~seagul_envs.tasks.base.Task` with a zero-order hold over a control period ``dt``.
 Conventions shared by all of them:
@@ -9,8 +9,15 @@ Conventions shared by all of them:
   transcription's running cost ``sum_k h_k l(x_k, u_k)``; on the step where the episode ends (time to go reaches 0,
   or the state leaves the task's bounds) ``-l_f(x_end)`` is added, so an episode's return is minus the cost of the
   trajectory flown. Charging ``l_f`` at a crash too keeps a crash from being cheaper than arriving at that same place.
-* The episode has ``ceil(tau / dt)`` steps, counted with an integer (no float accumulation); when ``tau`` is not a
-  multiple of ``dt`` the last step is shorter so the time to go reaches exactly 0.
+* The episode has ``ceil(tau / dt)`` steps (:func:`episode_steps`), counted with an integer (no float
+  accumulation); when ``tau`` is not a multiple of ``dt`` the last step is shorter so the time to go reaches
+  exactly 0. The env itself reports ``truncated`` on that step.
+* ``gym.make`` also wraps the env in Gymnasium's ``TimeLimit`` with the registered ``max_episode_steps``: the
+  longest admissible episode at the task's control period, ``episode_steps(max T0, control_period)``
+  (:func:`longest_episode_steps`). The env's own truncation comes first or on the same step, so the two never
+  disagree for any admissible ``time_to_go``. The limit counts default control periods: with another ``dt``, pass
+  ``gym.make`` the ``max_episode_steps`` that :func:`longest_episode_steps` gives for it
+  (:func:`seagul_envs.make_env` does), or ``max_episode_steps=-1`` (no ``TimeLimit``).
 * Actions are clipped to the Box (as Gymnasium's continuous envs do), then to any state-dependent limit of the env
   (the glider's elevator stops); a NaN/inf or wrongly shaped action raises a ValueError before anything changes.
   The reward charges the input actually applied.
@@ -62,6 +69,24 @@ class BufferedFunction:
     def __call__(self) -> None:
         """Evaluate on ``self.args`` into ``self.res`` (fill the inputs in place first)."""
         self._eval()
+
+
+def episode_steps(tau: float, dt: float) -> int:
+    """The number of control steps of an episode of time to go ``tau`` at control period ``dt``:
+    ``max(1, ceil(tau / dt - 1e-9))`` (the ``1e-9`` keeps ``5.0 / 0.1 = 50.000000000000007`` from adding a 51st
+    step of 1e-15 s)."""
+    return max(1, math.ceil(float(tau) / float(dt) - 1e-9))
+
+
+def longest_episode_steps(task: Task, dt: float | None = None) -> int:
+    """The longest admissible episode of ``task`` in control steps: :func:`episode_steps` of the largest time to go
+    of T0 (``task.tau_range[1]``) at ``dt`` (default ``task.control_period``).
+
+    It is the ``max_episode_steps`` of the registered Gymnasium ids, so ``gym.make``'s ``TimeLimit`` never ends an
+    episode before the env's own truncation (time to go 0), whatever ``reset(options={"time_to_go": tau})`` chose.
+    """
+    period = task.control_period if dt is None else dt
+    return episode_steps(task.tau_range[1], _positive_seconds(period, f"{task.name}: dt"))
 
 
 def resolve_task(task: Task | None, name: str, env_name: str, params_class: type | None = None) -> Task:
@@ -236,7 +261,8 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
 
     @property
     def max_episode_steps(self) -> int:
-        """Number of steps of the current episode (``ceil(tau / dt)``)."""
+        """Number of steps of the current episode (``ceil(tau / dt)``, :func:`episode_steps`); the registered
+        ``spec.max_episode_steps`` is the longest admissible one (:func:`longest_episode_steps`)."""
         return self._n_steps
 
     # ------------------------------------------------------------- Gymnasium
@@ -291,8 +317,7 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
         self._x = x0.copy()
         self._tau = tau
         self._k = 0
-        # 1e-9 guards against 5.0 / 0.1 = 50.000000000000007 making a 51st step of 1e-15 s.
-        self._n_steps = max(1, math.ceil(tau / self.dt - 1e-9))
+        self._n_steps = episode_steps(tau, self.dt)
         last = tau - (self._n_steps - 1) * self.dt
         self._last_h = self.dt if abs(last - self.dt) <= 1e-9 * self.dt else last
         self._last_u = np.zeros(self._nu)
@@ -364,7 +389,12 @@ class SeagulEnv(gym.Env[np.ndarray, np.ndarray]):
     def _snap_tau(self, tau: Any) -> Any:
         """Accept the float32 rounding of the largest time to go (an observation's last entry fed back)."""
         hi = float(self.task.tau_range[1])
-        if isinstance(tau, (float, int, np.floating, np.integer)) and hi < float(tau) <= hi * (1 + 1e-6):
+        numeric = isinstance(tau, (float, int, np.floating, np.integer)) or (
+            isinstance(tau, np.ndarray) and tau.ndim == 0 and np.issubdtype(tau.dtype, np.number)
+        )
+        # Snapping also keeps the episode within the registered max_episode_steps: check_tau accepts hi + 1e-9,
+        # which would otherwise add a last step of 1e-9 s.
+        if numeric and hi < float(tau) <= hi * (1 + 1e-6):
             return hi
         return tau
 

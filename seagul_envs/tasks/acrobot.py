@@ -98,7 +98,7 @@ TRAIN_RECIPE: dict[str, object] = {
     # episodes at rest), Sobolev labels capped at 50, a 2 x 64 network; the final refit fits 6 members and keeps the
     # 3 whose unguarded MPC flies best on 400 training starts (half at rest). 5 seeds: 99.25 % of the 20 x 20 grid,
     # 99 % of 100 held-out starts (full horizon 99.75 % / 93 %); the same split at 2,000 solves: 98.75 % / 98 %
-    # (docs/closed_loop.md, seventeenth and eighteenth sessions).
+    # (docs/closed_loop.md).
     "sampler": "closed-loop",
     "budget": 1000,
     "hidden": (64, 64),

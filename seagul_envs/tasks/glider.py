@@ -94,7 +94,7 @@ TRAIN_RECIPE: dict[str, object] = {
     # 2,000 solves: 1,000 uniform, then 20 closed-loop rounds of 50 tail solves collected by the deployed, unguarded
     # MPC from the first round, Sobolev labels capped at 1,500 (values of 40-1,000 on X0), a 2 x 64 network; the
     # network of the round whose collector flew best is deployed (cl_keep_best). 7 seeds: 91.7 % of the 6 x 6 grid
-    # perched, 89 % of 100 held-out starts (full horizon 100 %; docs/closed_loop.md, eighth session).
+    # perched, 89 % of 100 held-out starts (full horizon 100 %; docs/closed_loop.md).
     "sampler": "closed-loop",
     "budget": 2000,
     "hidden": (64, 64),
