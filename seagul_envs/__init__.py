@@ -7,7 +7,7 @@ Custom tasks: :func:`make_env` turns any :class:`Task` into an env with the buil
 :func:`register_task` adds a task factory to :func:`make_task` and to ``gym.make`` (in the calling process; workers
 must import the module that registers it, or receive the Task by pickling). A task's :class:`TaskProfile` carries
 how the library treats it (solver plan, validation set, success rule, presets, ...); :func:`load_task` resolves a
-command-line ``--task`` value (a name or ``module:factory``). See docs/custom_system.md.
+command-line ``--task`` value (a name or ``module:factory``). See docs/tutorials/custom-system.md.
 """
 
 from __future__ import annotations

@@ -17,7 +17,8 @@ from seagul_envs import ENV_IDS
 
 IDS = list(ENV_IDS)
 
-# Gymnasium recommends normalised [-1, 1] action boxes; docs/spec.md §7.2 asks for physical units (N m, rad/s), so this
+# Gymnasium recommends normalised [-1, 1] action boxes; docs/reference/spec.md §7.2 asks for physical units (N m,
+# rad/s), so this
 # one recommendation is expected and every other warning fails the test.
 _ACTION_SCALE_RECOMMENDATION = re.compile(r"we recommend using a symmetric and normalized space")
 
@@ -129,7 +130,8 @@ def test_make_vec_sync_and_async_agree(env_id: str) -> None:
 
 
 def _cost_weights(task: seagul_envs.Task) -> tuple[np.ndarray, np.ndarray, float, np.ndarray]:
-    """Running/terminal weights written from docs/spec.md §3.4/§4.4 (not read from the Task's CasADi functions)."""
+    """Running/terminal weights written from docs/reference/spec.md §3.4/§4.4 (not read from the Task's CasADi
+    functions)."""
     if task.name == "acrobot":
         # Qf is the task's DARE solution (its own test checks it is the Riccati fixed point).
         return np.diag([1.0, 1.0, 0.1, 0.1]), np.array([np.pi, 0, 0, 0]), 0.01, task.extras["Qf"]

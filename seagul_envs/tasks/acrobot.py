@@ -1,4 +1,4 @@
-"""The acrobot swing-up/balance task (docs/spec.md §3).
+"""The acrobot swing-up/balance task (docs/reference/spec.md §3).
 
 Model [src: Drake ``AcrobotPlant``/``AcrobotParams``, Underactuated ch. 3]::
 
@@ -37,7 +37,7 @@ from seagul_envs.tasks.profile import (
 )
 
 SUCCESS_DISTANCE = 0.05
-"""Success: ``||x(T) - x*||_2 < 0.05`` at the end of an episode (docs/spec.md §3.6)."""
+"""Success: ``||x(T) - x*||_2 < 0.05`` at the end of an episode (docs/reference/spec.md §3.6)."""
 
 SOLVER_DEFAULTS = SolverDefaults(
     plan=("fatrop:line", "ipopt_fast:line", "ipopt:line", "ipopt:goal"),
@@ -45,7 +45,8 @@ SOLVER_DEFAULTS = SolverDefaults(
     multi_start_guesses=("line", "goal"),
     suspect_value=30.0,
 )
-"""The acrobot's attempt plan (measured, docs/trajopt.md): fatrop is the fastest per iteration but fails ~10 % of
+"""The acrobot's attempt plan (measured, docs/experiments/trajopt.md): fatrop is the fastest per iteration but fails
+~10 % of
 starts (no restoration on its line-search failures); ``ipopt_fast`` (IPOPT accepting every trial step) converges in
 ~15 iterations; the careful IPOPT with two guesses comes last. Multi-start: over 300 uniform starts 6 labels (2 %)
 were poor local optima (34-129, while IPOPT from "the goal everywhere" found 16-35) and only one good label exceeded
@@ -53,7 +54,7 @@ were poor local optima (34-129, while IPOPT from "the goal everywhere" found 16-
 
 # Quick: the closed-loop method starts its loop after 20 uniform solves (a 10-solve network's planner queries are
 # states with values of 1e4 and more), 10 episodes a round, tails every 1 s (4 tail solvers to compile on a fresh
-# machine), labels clipped at 300 (docs/closed_loop.md).
+# machine), labels clipped at 300 (docs/experiments/closed-loop.md).
 _QUICK_CLOSED_LOOP: tuple[tuple[str, object], ...] = (
     ("closed-loop:cl_uniform_solves", 20),
     ("closed-loop:cl_episodes", 10),
@@ -98,7 +99,7 @@ TRAIN_RECIPE: dict[str, object] = {
     # episodes at rest), Sobolev labels capped at 50, a 2 x 64 network; the final refit fits 6 members and keeps the
     # 3 whose unguarded MPC flies best on 400 training starts (half at rest). 5 seeds: 99.25 % of the 20 x 20 grid,
     # 99 % of 100 held-out starts (full horizon 99.75 % / 93 %); the same split at 2,000 solves: 98.75 % / 98 %
-    # (docs/closed_loop.md).
+    # (docs/experiments/closed-loop.md).
     "sampler": "closed-loop",
     "budget": 1000,
     "hidden": (64, 64),
@@ -131,7 +132,8 @@ TRAIN_RECIPE: dict[str, object] = {
 
 
 def acrobot_profile(p: AcrobotParams) -> TaskProfile:
-    """The acrobot's :class:`TaskProfile` (docs/spec.md §3.6): validation set, success, LQR weights, presets, ..."""
+    """The acrobot's :class:`TaskProfile` (docs/reference/spec.md §3.6): validation set, success, LQR weights, presets,
+    ..."""
     return TaskProfile(
         solver=SOLVER_DEFAULTS,
         # 10 x 10 over (th1, th2) at zero velocity (X0's velocity centre is 0) + 100 uniform 4-D draws.
@@ -145,9 +147,10 @@ def acrobot_profile(p: AcrobotParams) -> TaskProfile:
         train_recipe=TRAIN_RECIPE,
         env_id="SeagulAcrobot-v0",
         mpc_horizon=5,  # paper §6: 5 steps (0.5 s)
-        # the shipped networks are selected and measured unguarded: 99.25 % of the grid (docs/closed_loop.md)
+        # the shipped networks are selected and measured unguarded: 99.25 % of the grid
+        # (docs/experiments/closed-loop.md)
         mpc_trust_region="none",
-        mpc_goal_blend=1.0,  # V = l_f measured while l_f <~ 1 (docs/closed_loop.md); 11 % -> 74 % unguarded
+        mpc_goal_blend=1.0,  # V = l_f measured while l_f <~ 1 (docs/experiments/closed-loop.md); 11 % -> 74 % unguarded
         grid=EvaluationGrid(coords=(0, 1), fixed=((2, 0.0), (3, 0.0)), points=20),  # Fig. 2: (th1, th2), at rest
         heatmap_metric="final_distance",
         heatmap_caption=(
@@ -202,7 +205,7 @@ class AcrobotParams:
 
 
 def acrobot_mass_matrix(q: ca.SX, p: AcrobotParams) -> ca.SX:
-    """``M(q)`` of the manipulator equation (docs/spec.md §3.2)."""
+    """``M(q)`` of the manipulator equation (docs/reference/spec.md §3.2)."""
     c2 = ca.cos(q[1])
     I1 = p.Ic1 + p.m1 * p.lc1**2
     I2 = p.Ic2 + p.m2 * p.lc2**2
@@ -226,7 +229,8 @@ def acrobot_bias(q: ca.SX, dq: ca.SX, p: AcrobotParams) -> ca.SX:
 
 
 THETA_NAMES: tuple[str, ...] = ("m1", "m2", "l1", "lc2", "b1", "b2")
-"""The acrobot's parameters that may vary (docs/spec.md §14): link masses, the length of link 1, link 2's centre of
+"""The acrobot's parameters that may vary (docs/reference/spec.md §14): link masses, the length of link 1, link 2's
+centre of
 mass, the joint damping. The inertias about the centres of mass stay the model's."""
 THETA_UNITS: tuple[str, ...] = ("kg", "kg", "m", "m", "N m s", "N m s")
 THETA_SPREAD = 0.2

@@ -184,7 +184,8 @@ class Task:
     def goal_is_equilibrium(self, cost: bool = False) -> bool:
         """True when the goal is an equilibrium: ``f(x*, 0) = 0`` (to 1e-9), and with ``cost=True`` also a zero-cost
         one, ``l(x*, 0) = 0`` (to 1e-12). The LQR reference is stationary at an equilibrium goal and tracks a
-        trajectory otherwise; the MPC's goal anchor and goal blend need a zero-cost equilibrium (docs/spec.md)."""
+        trajectory otherwise; the MPC's goal anchor and goal blend need a zero-cost equilibrium
+        (docs/reference/spec.md)."""
         u0 = np.zeros(self.nu)
         drift = np.asarray(self.dynamics(self.goal, u0)).ravel()
         if not bool(np.allclose(drift, 0.0, atol=1e-9)):

@@ -1,4 +1,4 @@
-"""The perching-glider task (docs/spec.md §4).
+"""The perching-glider task (docs/reference/spec.md §4).
 
 Model [src: Drake (MATLAB era) ``examples/Glider/GliderPlant.m``; Underactuated "trajopt / perching"]: a flat-plate
 wing and elevator, ``x = [x, z, th, phi, dx, dz, dth]`` (centre-of-mass position, pitch positive nose-up, elevator
@@ -34,7 +34,7 @@ from seagul_envs.tasks.profile import (
 )
 
 PERCH_POSITION_TOL = 0.05
-"""Perch: ``|x|, |z| < 0.05`` m at the end of the episode (docs/spec.md §4.6)."""
+"""Perch: ``|x|, |z| < 0.05`` m at the end of the episode (docs/reference/spec.md §4.6)."""
 PERCH_SPEED_TOL = 2.0
 """Perch: ``|dx|, |dz| <= 2`` m/s at the end."""
 
@@ -44,12 +44,13 @@ SOLVER_DEFAULTS = SolverDefaults(
     kinematic_pairs=((0, 4), (1, 5)),
     tail_soft_bounds_weight=1e4,
 )
-"""The glider's attempt plan (measured, docs/trajopt.md): ``ipopt_fast`` converges in ~40 iterations where the filter
+"""The glider's attempt plan (measured, docs/experiments/trajopt.md): ``ipopt_fast`` converges in ~40 iterations where
+the filter
 line search needs ~140; the ``"kinematic"`` guess makes the (x, dx) and (z, dz) pairs consistent. Tails impose the
 perch box softly with ``M = 1e4`` per metre (or radian, m/s) of violation: the box's multipliers reach 3.7e3 at X0's
 corner (``M = 1e3`` changed that start's value from 948 to 618; from 1e4 on the values of X0 starts are the hard
 problem's), and a planned terminal state from which the perch is unreachable gets the soft value, e.g. 117 from
-the first plan of a uniform-trained MPC that ends 6 cm past the perch (docs/closed_loop.md)."""
+the first plan of a uniform-trained MPC that ends 6 cm past the perch (docs/experiments/closed-loop.md)."""
 
 PRESETS: dict[str, dict[str, object]] = {
     "smoke": {
@@ -94,7 +95,7 @@ TRAIN_RECIPE: dict[str, object] = {
     # 2,000 solves: 1,000 uniform, then 20 closed-loop rounds of 50 tail solves collected by the deployed, unguarded
     # MPC from the first round, Sobolev labels capped at 1,500 (values of 40-1,000 on X0), a 2 x 64 network; the
     # network of the round whose collector flew best is deployed (cl_keep_best). 7 seeds: 91.7 % of the 6 x 6 grid
-    # perched, 89 % of 100 held-out starts (full horizon 100 %; docs/closed_loop.md).
+    # perched, 89 % of 100 held-out starts (full horizon 100 %; docs/experiments/closed-loop.md).
     "sampler": "closed-loop",
     "budget": 2000,
     "hidden": (64, 64),
@@ -124,7 +125,8 @@ TRAIN_RECIPE: dict[str, object] = {
 
 
 def glider_profile(p: GliderParams, Qf: np.ndarray) -> TaskProfile:
-    """The glider's :class:`TaskProfile` (docs/spec.md §4.6): validation set, perch rule, TVLQR weights, presets, ..."""
+    """The glider's :class:`TaskProfile` (docs/reference/spec.md §4.6): validation set, perch rule, TVLQR weights,
+    presets, ..."""
     return TaskProfile(
         solver=SOLVER_DEFAULTS,
         # 6 x 6 x 6 over (x, z, dx), other states at X0's centre (0) + 250 uniform draws.
@@ -150,9 +152,10 @@ def glider_profile(p: GliderParams, Qf: np.ndarray) -> TaskProfile:
         env_id="SeagulGlider-v0",
         mpc_horizon=max(1, round(0.25 / p.control_period)),  # paper §6: about 250 ms
         # The final phase's exact perch (x = z = 0 at the end, fixed 25 ms steps) was out of reach on every final
-        # step of a learned MPC that perched (the shifted plan did it); soft, it converges (docs/closed_loop.md).
+        # step of a learned MPC that perched (the shifted plan did it); soft, it converges
+        # (docs/experiments/closed-loop.md).
         mpc_final_soft_weight=1e4,
-        # the shipped network perches unguarded on 91.7 % of the grid (docs/closed_loop.md)
+        # the shipped network perches unguarded on 91.7 % of the grid (docs/experiments/closed-loop.md)
         mpc_trust_region="none",
         grid=EvaluationGrid(coords=(0, 1), points=6),  # Fig. 4: (x, z), the rest at X0's centre (dx = 7)
         heatmap_metric="cost",
@@ -245,7 +248,7 @@ def glider_xdot(x: ca.SX, u: ca.SX, p: GliderParams) -> ca.SX:
 
 
 THETA_NAMES: tuple[str, ...] = ("m", "S_w", "S_e", "rho")
-"""The glider's parameters that may vary (docs/spec.md §14): mass, wing and elevator areas, air density. The
+"""The glider's parameters that may vary (docs/reference/spec.md §14): mass, wing and elevator areas, air density. The
 geometry (lever arms) and the pitch inertia stay the model's."""
 THETA_UNITS: tuple[str, ...] = ("kg", "m^2", "m^2", "kg/m^3")
 THETA_SPREAD: tuple[float, ...] = (0.15, 0.1, 0.2, 0.1)

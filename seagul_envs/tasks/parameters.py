@@ -2,7 +2,8 @@
 
 A task that declares a :class:`ParameterSpace` (``Task.parameters``) names the fields of its parameter dataclass
 that may vary (the acrobot's masses, lengths and damping; the glider's mass, plate areas and air density:
-docs/spec.md §14), the box ``Theta = [low, high]`` of plausible values around the nominal ones, and the dynamics as
+docs/reference/spec.md §14), the box ``Theta = [low, high]`` of plausible values around the nominal ones, and the
+dynamics as
 a function of them, ``xdot = f(x, u, theta)``. Everything else of the task (costs, bounds, X0, the profile) belongs
 to the objective, not to the robot, and does not change with ``theta``.
 

@@ -1,4 +1,4 @@
-"""Per-task knowledge the learning, control and reporting code needs, carried by the task (docs/spec.md §2.1).
+"""Per-task knowledge the learning, control and reporting code needs, carried by the task (docs/reference/spec.md §2.1).
 
 A :class:`TaskProfile` is the ``profile`` field of every :class:`~seagul_envs.tasks.base.Task`. It holds what is
 not the optimal-control problem itself but how the library treats the task: the trajectory optimizer's attempt plan
@@ -30,7 +30,7 @@ if TYPE_CHECKING:
     from seagul_envs.tasks.base import Task
 
 VALIDATION_SEED = 20210718
-"""Seed of the uniform draws of every validation set: one set for all training seeds (docs/spec.md §12.1)."""
+"""Seed of the uniform draws of every validation set: one set for all training seeds (docs/reference/spec.md §12.1)."""
 
 SMOKE_TRAIN_OVERRIDES: tuple[tuple[str, Any], ...] = (
     ("cl_jit", False),
@@ -46,7 +46,7 @@ per round, half of each round's solves uniform, tails of multiples of 5 interval
 @dataclass(frozen=True)
 class SolverDefaults:
     """The trajectory optimizer's defaults for a task: the fields a :class:`~seagul_learn.trajopt.TrajOptConfig`
-    leaves at None (docs/trajopt.md, docs/spec.md §6.4)."""
+    leaves at None (docs/experiments/trajopt.md, docs/reference/spec.md §6.4)."""
 
     plan: tuple[str, ...] | None = None
     """Attempts ``"solver:guess"`` tried in order until one succeeds. None: derived from the config's ``solver``
@@ -83,7 +83,7 @@ class SolverDefaults:
 @dataclass(frozen=True)
 class ValidationSpec:
     """A validation set: a grid over some coordinates of X0 (the others at X0's centre) plus uniform draws from X0,
-    all at the nominal time to go (docs/spec.md §3.6, §4.6)."""
+    all at the nominal time to go (docs/reference/spec.md §3.6, §4.6)."""
 
     grid_coords: tuple[int, ...]
     """State coordinates spanned by the grid."""
@@ -259,7 +259,7 @@ class TaskProfile:
     """
 
     solver: SolverDefaults = field(default_factory=SolverDefaults)
-    """The trajectory optimizer's attempt plan and multi-start (docs/spec.md §6.4)."""
+    """The trajectory optimizer's attempt plan and multi-start (docs/reference/spec.md §6.4)."""
     validation: ValidationSpec | None = None
     """The validation set. None: a 10 x 10 grid over the two coordinates of :attr:`grid` plus 100 uniform draws."""
     success: SuccessRule | Callable[..., bool] = field(default_factory=SuccessRule)
@@ -294,12 +294,12 @@ class TaskProfile:
     ``seagul_control.mpc``): ``"lqr"`` until a task's learned values are measured to work on their own."""
     mpc_goal_blend: float = 0.0
     """Default ``goal_blend`` of the limited-lookahead MPC (value units; 0 = off): below about this value of ``l_f``
-    the task's terminal quadratic is the value (equilibrium goals only; docs/closed_loop.md)."""
+    the task's terminal quadratic is the value (equilibrium goals only; docs/experiments/closed-loop.md)."""
     mpc_final_soft_weight: float | None = None
     """Default ``final_soft_weight`` of the limited-lookahead MPC's final phase (the last ``horizon`` steps, which
     end at the episode end inside the terminal box): None imposes the box and path bounds as bounds; a weight makes
     them the exact L1 penalty (IPOPT), so the final phase always returns the plan that ends closest to the box
-    instead of failing when the box is out of exact reach (glider: 1e4; docs/closed_loop.md)."""
+    instead of failing when the box is out of exact reach (glider: 1e4; docs/experiments/closed-loop.md)."""
     grid: EvaluationGrid = field(default_factory=EvaluationGrid)
     """The closed-loop start grid."""
     heatmap_metric: str = "final_distance"
@@ -345,7 +345,8 @@ class TaskProfile:
         return max(1, round(0.25 / task.control_period))
 
     def lqr_weights(self, task: Task, time_varying: bool) -> tuple[np.ndarray, np.ndarray]:
-        """``(Q, R)`` of the LQR reference (stationary at an equilibrium goal, else tracking; docs/spec.md §9.6)."""
+        """``(Q, R)`` of the LQR reference (stationary at an equilibrium goal, else tracking; docs/reference/spec.md
+        §9.6)."""
         nx, nu = task.nx, task.nu
         if time_varying:
             Q = self.lqr_Q if self.lqr_Q is not None else task.extras.get("Qf", np.eye(nx))
