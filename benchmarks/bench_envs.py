@@ -8,7 +8,8 @@ Usage::
 Every env runs ``--steps`` steps per repetition (pre-drawn random actions, resetting at episode ends, resets
 included in the time), in an interleaved order (A B C D, A B C D, ...) so that load from other processes hits all of
 them alike; the medians over ``--reps`` repetitions are reported, for the raw env (``env.unwrapped.step``) and for
-the ``gym.make`` stack (``PassiveEnvChecker``/``OrderEnforcing``, plus ``TimeLimit`` for ``Acrobot-v1``).
+the ``gym.make`` stack (``PassiveEnvChecker``/``OrderEnforcing``/``TimeLimit``: every registered id declares
+``max_episode_steps``).
 
 It also measures what each acrobot's step integrates: the largest error of one control step against a
 ``solve_ivp`` (DOP853, rtol = atol = 1e-12) reference of the *same* model, from X0-like states. ``Acrobot-v1`` does
