@@ -283,7 +283,13 @@ def section_controllers() -> str:
     for task, title in (("acrobot", "Acrobot (analytic model)"), ("acrobot_mujoco", "Acrobot in MuJoCo"),
                         ("glider", "Glider (perching)")):
         data = load(f"controllers_{task}.json")
-        out += ["", f"### {title}", "", table([*CONTROLLER_HEADER, "source"], controller_rows(task, brief=False))]
+        out += ["", f"### {title}", "", table(CONTROLLER_HEADER, controller_rows(task, brief=True))]
+        sources: dict[str, list[str]] = {}
+        for r in data["rows"]:
+            sources.setdefault(r["source"], []).append(_short_name(r["method"]))
+        out += ["", "Where each row's numbers come from: " + "; ".join(
+            f"{', '.join(rows)}: {src.replace('measured here', 'measured by the command below')}"
+            for src, rows in sources.items()) + "."]
         source = f"benchmarks/results/controllers_{task}.json"
         out += ["", f"Command: `{CURRENT[f'controllers_{task}.json'][1]}` -> `{source}` "
                 f"({machine_line(data.get('machine'))})."]
