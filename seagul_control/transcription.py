@@ -56,6 +56,7 @@ import casadi as ca
 import numpy as np
 
 from seagul_control import _io
+from seagul_control._interrupt import interrupts_kept
 from seagul_control._io import atomic_write_text
 from seagul_control._watchdog import ForkedSolver, SolverDied, SolveTimeout
 from seagul_envs.tasks.base import Task
@@ -867,11 +868,13 @@ class Transcription:
         if lam_x is not None:
             args["lam_x0"] = lam_x
         if self._shooting is not None:
-            return self._solve_shooting(w0, p, float(tau), starts)
+            with interrupts_kept():
+                return self._solve_shooting(w0, p, float(tau), starts)
         call: Any = self._solver if self._guard is None else self._guard
         start = time.perf_counter()
         try:
-            out = call(**args)
+            with interrupts_kept():  # CasADi turns Ctrl-C into a failed solve; this re-raises it after the solve
+                out = call(**args)
         except SolveTimeout as exc:
             return self._failed(w0, f"timeout: {exc}", time.perf_counter() - start)
         except SolverDied as exc:  # a crash (or kill) of the guarded solve's child: this solve failed

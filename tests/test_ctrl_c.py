@@ -1,0 +1,87 @@
+"""Ctrl-C during a solve stops the program: CasADi turns the interrupt it polls inside a solver into a failed
+solve, and ``seagul_control._interrupt.interrupts_kept`` raises it again once the solver has returned."""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+
+import numpy as np
+import pytest
+
+from seagul_control._interrupt import interrupts_kept
+
+
+@pytest.fixture
+def default_sigint():
+    """Python's own SIGINT handler (test runners and their workers may install another one or ignore SIGINT)."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
+def test_an_interrupt_swallowed_inside_the_body_is_raised_after_it(default_sigint):
+    swallowed = False
+    with pytest.raises(KeyboardInterrupt):
+        with interrupts_kept():
+            try:
+                signal.raise_signal(signal.SIGINT)  # what CasADi's solver loop sees ...
+            except KeyboardInterrupt:
+                swallowed = True  # ... and turns into a failed solve
+    assert swallowed
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+
+
+def test_an_exception_of_the_body_after_an_interrupt_becomes_the_interrupt(default_sigint):
+    with pytest.raises(KeyboardInterrupt) as exc:
+        with interrupts_kept():
+            try:
+                signal.raise_signal(signal.SIGINT)
+            except KeyboardInterrupt:
+                pass
+            raise RuntimeError("solver died")  # e.g. the guarded solve's child killed by the same Ctrl-C
+    assert isinstance(exc.value.__cause__, RuntimeError)
+
+
+def test_without_an_interrupt_the_body_runs_and_its_exceptions_pass(default_sigint):
+    with interrupts_kept():
+        value = 1
+    assert value == 1
+    with pytest.raises(ValueError), interrupts_kept():
+        raise ValueError("not an interrupt")
+
+
+def test_another_handler_is_left_alone():
+    seen = []
+    previous = signal.signal(signal.SIGINT, lambda *_: seen.append(1))
+    try:
+        with interrupts_kept():
+            signal.raise_signal(signal.SIGINT)
+        assert seen == [1]
+    finally:
+        signal.signal(signal.SIGINT, previous)
+
+
+def test_ctrl_c_during_an_ipopt_solve_raises_after_it(default_sigint):
+    """One SIGINT sent while IPOPT runs in-process: CasADi ends the solve with ``NonIpopt_Exception_Thrown`` and
+    clears the interrupt; the solve must still end in KeyboardInterrupt (it returned a failed solve without the
+    re-raise)."""
+    import seagul_control.transcription as transcription
+    from seagul_envs import make_task
+
+    task = make_task("acrobot")
+    tr = transcription.Transcription(task, solver="ipopt", codegen=False)
+    x0 = np.array([0.3, 0.2, 0.0, 0.0])  # far from upright: ~110 interpreted IPOPT iterations, ~0.5 s
+    tr.solve(x0, task.tau_nominal)  # built before the interrupt
+    timer = threading.Timer(0.05, os.kill, (os.getpid(), signal.SIGINT))
+    start = time.perf_counter()
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            solution = tr.solve(x0, task.tau_nominal)
+            # reached only when the interrupt was swallowed: say how
+            pytest.fail(f"the solve returned {solution.status!r} after {time.perf_counter() - start:.2f} s")
+    finally:
+        timer.cancel()
