@@ -102,10 +102,23 @@ class _Server:
         self.stop()
         parent, child = Pipe(duplex=True)
         owner = os.getpid()
+        # SIGINT is blocked across the fork: an interrupt landing in the child before its try block would return
+        # into the parent's code in the child (a second copy of the program, running on). The child then ignores
+        # SIGINT (a Ctrl-C is the parent's to handle; the parent kills the child); the parent gets any pending one.
+        masked = hasattr(signal, "pthread_sigmask")
+        if masked:
+            signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         pid = os.fork()
         if pid == 0:  # the child: serve until the parent goes away, never return into the parent's code
             code = 0
             try:
+                try:
+                    signal.signal(signal.SIGINT, signal.SIG_IGN)
+                except ValueError:  # forked from a thread Python does not treat as main: keep the mask instead
+                    pass
+                else:
+                    if masked:
+                        signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
                 _die_with_parent(owner)
                 parent.close()
                 _serve(self.solvers, child)
@@ -113,6 +126,8 @@ class _Server:
                 code = 1
             finally:
                 os._exit(code)
+        if masked:
+            signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})
         child.close()
         self.pid, self.conn, self.known = pid, parent, set(self.solvers)
         self._finalizer = weakref.finalize(self, _stop, pid, parent)
@@ -135,6 +150,9 @@ class _Server:
         except (BrokenPipeError, EOFError, OSError) as exc:
             self.stop()
             raise SolverDied(f"the solver's child process died ({exc})") from exc
+        except BaseException:  # Ctrl-C mid-solve: the child's late reply must never answer a later call
+            self.stop()
+            raise
         if not ready:
             self.stop()
             raise SolveTimeout(f"no solution within max_solve_time={limit:g} s (solve stopped)")
@@ -143,6 +161,9 @@ class _Server:
         except (EOFError, OSError) as exc:  # the child crashed inside the solver
             self.stop()
             raise SolverDied(f"the solver's child process died ({exc})") from exc
+        except BaseException:
+            self.stop()
+            raise
         if kind != "ok":
             raise RuntimeError(payload)
         return payload, stats

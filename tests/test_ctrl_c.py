@@ -85,3 +85,45 @@ def test_ctrl_c_during_an_ipopt_solve_raises_after_it(default_sigint):
             pytest.fail(f"the solve returned {solution.status!r} after {time.perf_counter() - start:.2f} s")
     finally:
         timer.cancel()
+
+
+def test_ctrl_c_during_a_guarded_solve_kills_its_child_and_the_next_solve_is_its_own(default_sigint):
+    """fatrop solves in a forked child: a SIGINT while the parent waits raises KeyboardInterrupt, the child (still
+    solving) is killed, so its late reply can never answer the next solve, which equals the uninterrupted one."""
+    from seagul_control import _watchdog
+    from seagul_control._watchdog import ForkedSolver
+    from seagul_control.transcription import Transcription
+    from seagul_envs import make_task
+
+    if not ForkedSolver.supported:
+        pytest.skip("needs os.fork")
+    task = make_task("acrobot")
+    trans = Transcription(task, 5, step=0.1, solver="fatrop", max_solve_time=30.0)
+    x = np.array([0.3, -0.2, 0.0, 0.0])
+    reference = trans.solve(x, 5.0)
+    server = _watchdog._server()
+    key = trans._guard._key
+    real = server.solvers[key]
+
+    class Slow:  # answers, but only after the interrupt: a stale reply if the child were left running
+        def __call__(self, **args):
+            time.sleep(1.0)
+            return real(**{**args, "x0": np.zeros_like(np.asarray(args["x0"]))})
+
+        def stats(self):
+            return real.stats()
+
+    server.solvers[key] = Slow()
+    server.stop()  # the next call forks a child holding the slow solver
+    timer = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT))
+    timer.start()
+    try:
+        with pytest.raises(KeyboardInterrupt):
+            trans.solve(x, 5.0)
+    finally:
+        timer.cancel()
+    assert server.pid is None  # the interrupted child was killed and reaped
+    server.solvers[key] = real
+    time.sleep(1.2)  # past the moment the slow child would have replied
+    again = trans.solve(x, 5.0)
+    np.testing.assert_allclose(again.primal, reference.primal, rtol=0, atol=1e-12)
