@@ -10,9 +10,10 @@ Controllers, left to right: the learned limited-lookahead MPC (``--network``, de
 benchmark deploys it: the task's default horizon, no guard, the task's goal blend), LQR (time-varying along the
 optimal path for the glider), the full-horizon MPC and every ``--sb3`` model (``model.zip:SAC``; its
 ``vecnormalize.pkl`` is found beside it). The default start is the corner of X0 that is farthest from the goal in
-the task's grid coordinates (acrobot: ``(th1, th2) = (pi - 0.3, -0.3)`` at rest). Frames come from the envs'
-``rgb_array`` rendering (``seagul_learn.report.controller_animation``); the GIF plays in real time and holds the
-last frame, whose labels say who succeeded and at what cost. ``--test`` is a seconds-long check (CI): LQR only.
+the task's grid coordinates (``seagul_learn.report.hard_start``; acrobot: ``(th1, th2) = (pi - 0.3, -0.3)`` at
+rest). Frames come from the envs' ``rgb_array`` rendering (``seagul_learn.report.controller_animation``); the GIF
+plays in real time and holds the last frame, whose labels say who succeeded and at what cost. ``--test`` is a
+seconds-long check (CI): LQR only.
 """
 
 from __future__ import annotations
@@ -25,8 +26,7 @@ import numpy as np
 
 from seagul_control.evaluation import PolicySpec, build_policy, default_horizon
 from seagul_envs import make_task
-from seagul_envs.tasks.base import Task
-from seagul_learn.report import controller_animation
+from seagul_learn.report import controller_animation, hard_start
 
 
 @dataclasses.dataclass
@@ -47,15 +47,6 @@ class Config:
     """GIF path (default docs/figures/<task>_controllers.gif)."""
     test: bool = False
     """Seconds-long check: LQR only, written to a temporary directory."""
-
-
-def hard_start(task: Task) -> np.ndarray:
-    """The corner of X0 farthest from the goal in the task's grid coordinates (other coordinates at X0's centre)."""
-    x = 0.5 * (task.x0_low + task.x0_high)
-    for i in task.profile.grid.coords or range(task.nx):
-        lo, hi = task.x0_low[i], task.x0_high[i]
-        x[i] = lo if abs(lo - task.goal[i]) >= abs(hi - task.goal[i]) else hi
-    return x
 
 
 def main(cfg: Config) -> Path:

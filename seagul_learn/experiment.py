@@ -1,6 +1,15 @@
-"""The paper's experiment end to end (``seagul reproduce``): validation set, three ways of learning the value
-function trained over paired seeds, closed-loop MPC evaluation of every network next to LQR and the full-horizon
-MPC, and a report.
+"""The paper's experiment end to end (``seagul reproduce``): the task's shipped controller in closed loop, validation
+set, three ways of learning the value function trained over paired seeds, closed-loop MPC evaluation of every
+network next to LQR and the full-horizon MPC, and a report.
+
+**Shipped controller** (``shipped/shipped.json``, ``shipped/shipped_vs_lqr.gif``; the ``shipped`` block of
+``experiment.json``; the report's first section). The network the closed-loop benchmark ships for the task
+(:func:`seagul_learn.shipped.shipped_network`: ``benchmarks/results/closed_loop.json``) as the terminal cost of the
+limited-lookahead MPC deployed as that benchmark deploys it, from the reference grid's starts beside LQR and the
+full-horizon MPC (whose episodes there the closed-loop evaluation shares), and one animation of it beside LQR from the
+hardest corner of X0. The MPC runs with CasADi interpreted unless ``--shipped-jit`` (the same problem and solver;
+compiling it is about 2 minutes of gcc on a cold cache). A task without a shipped network gets a line saying so and
+no block.
 
 **Learning methods** (:data:`METHODS`: a name and its :class:`~seagul_learn.training.TrainConfig` overrides). Every
 method of a seed starts from IDENTICAL pretrained parameters and spends the same number of solves and training steps:
@@ -27,9 +36,9 @@ every final network) run as baselines.
 
 Every stage writes its results into the run directory before the next starts, and a finished stage is never run
 again: training runs checkpoint after each round (``seagul_learn.training``), solves (training, query errors) are
-cached on disk bit for bit, and the closed-loop episodes of each policy and each query error are stored as soon as
-they are complete. So Ctrl-C (or SIGKILL) at any moment leaves a run that ``seagul reproduce TASK --resume DIR``
-finishes with the same numbers.
+cached on disk bit for bit, the closed-loop episodes of each policy and each query error are stored as soon as
+they are complete, and the shipped controller's evaluation is read back from ``shipped/shipped.json``. So Ctrl-C
+(or SIGKILL) at any moment leaves a run that ``seagul reproduce TASK --resume DIR`` finishes with the same numbers.
 
 Presets (one place for every number of the experiment; the paper's settings are §6 of the paper) live on the task,
 ``task.profile.presets`` (the acrobot's and the glider's in their task modules, a new task gets
@@ -68,6 +77,7 @@ from seagul_learn.comparison import (
     plot_curves_with_band,
 )
 from seagul_learn.dataset import atomic_write_text
+from seagul_learn.shipped import shipped_network
 
 SB3_ALGOS = ALGOS
 """The stable-baselines3 algorithms of :attr:`ExperimentConfig.sb3_algo` (those of :mod:`seagul_learn.baselines`)."""
@@ -81,6 +91,9 @@ METHODS: dict[str, dict[str, Any]] = {
 
 METHOD_LABELS: dict[str, str] = {"uniform": "uniform", "adversarial": "SEAGuL", "closed-loop": "closed-loop"}
 """Names of the methods in tables and figures (the policy of a method is ``"<label> MPC"``)."""
+
+SHIPPED_LABEL = "shipped MPC"
+"""The shipped controller's name in tables, figures and its stored episodes (``shipped/episodes``)."""
 
 BASELINE_METHOD = "uniform"
 """The method every other one is compared to on validation error (``learning.json``)."""
@@ -256,6 +269,11 @@ class ExperimentConfig:
     """Other Gymnasium envs of the task (e.g. ``SeagulAcrobotMujoco-v0``, the MuJoCo acrobot) in which the final
     networks, LQR and the SB3 models also run on the main grid; the report's "Other simulators" section puts each
     controller's success in every simulator side by side."""
+    shipped_jit: bool = False
+    """Compile the shipped MPC (:mod:`seagul_learn.shipped`) as the closed-loop benchmark deployed it. Off, the
+    same MPC (problem, solver, options) runs with CasADi interpreted: slower steps, which the report labels as
+    such. Compiled, its first build on a cold cache is about 2 minutes of gcc per network architecture, a third of
+    the quick preset's time."""
 
     def __post_init__(self) -> None:
         # experiment.json stores the tuple as a JSON list; a single path given as a string is one model.
@@ -361,9 +379,13 @@ class Experiment:
         self.task = config.resolve_task()
         self.state_path = self.out / "experiment.json"
         self.timings: dict[str, float] = {}
+        self.shipped: dict[str, Any] | None = None
+        """The shipped controller's block of ``experiment.json`` (:meth:`evaluate_shipped`; None until measured or
+        for a task without one)."""
         if self.state_path.is_file():
             stored = json.loads(self.state_path.read_text())
             self.timings = {k: float(v) for k, v in stored.get("timings", {}).items()}
+            self.shipped = stored.get("shipped")
 
     # ------------------------------------------------------------------------------------------------ creation
     @classmethod
@@ -376,6 +398,7 @@ class Experiment:
         out = Path(out)
         if (out / "experiment.json").exists():
             raise FileExistsError(f"{str(out)!r} already holds an experiment; use --resume {out} to continue it")
+        shipped_network(config.resolve_task())  # a declared but missing network file fails here, before any work
         out.mkdir(parents=True, exist_ok=True)
         experiment = cls(config, out)
         experiment.train_jobs()  # checks the preset's TrainConfig overrides before any work
@@ -435,6 +458,8 @@ class Experiment:
             "settings": asdict(self.preset),
             "timings": self.timings,
         }
+        if self.shipped is not None:
+            payload["shipped"] = self.shipped
         atomic_write_text(self.state_path, json.dumps(payload, indent=2, sort_keys=True))
 
     def _timed(self, stage: str, fn: Callable[[], Any]) -> Any:
@@ -449,6 +474,7 @@ class Experiment:
     def run(self) -> Path:
         """Run every unfinished stage; return the path of ``report.md``."""
         start = time.perf_counter()
+        shipped = self._timed("shipped controller", self.evaluate_shipped)
         self._timed("validation set", self.validation_set)
         runs = self._timed("training", self.train_all)
         learning = self._timed("comparison", lambda: self.compare(runs))
@@ -456,7 +482,7 @@ class Experiment:
         if self.config.envs:
             closed_loop["other_envs"] = self._timed("other simulators", self.evaluate_other_envs)
         self.timings.setdefault("total", time.perf_counter() - start)
-        report = self.write_report(runs, learning, closed_loop)
+        report = self.write_report(runs, learning, closed_loop, shipped)
         self._save_state()
         return report
 
@@ -596,17 +622,106 @@ class Experiment:
         atomic_write_text(self.out / "learning.json", json.dumps(out, indent=2, allow_nan=True))
         return out
 
+    # ---------------------------------------------------------------------------------------- shipped controller
+    def shipped_grid(self) -> tuple[np.ndarray, dict[str, Any]]:
+        """The starts of the shipped controller's evaluation: the preset's reference grid, where the (expensive)
+        full-horizon MPC runs for the comparison too, so the three controllers share its starts and its episodes."""
+        from seagul_control.evaluation import start_grid
+
+        return start_grid(self.task, self.preset.reference_grid_points)
+
+    def evaluate_shipped(self) -> dict[str, Any]:
+        """The task's shipped controller (:func:`seagul_learn.shipped.shipped_network`) in closed loop on
+        :meth:`shipped_grid` beside LQR and the full-horizon MPC, and an animation of it beside LQR from the hard
+        start (:func:`seagul_learn.report.hard_start`).
+
+        Writes ``shipped/shipped.json`` (the stage's result: ``block``, the ``experiment.json`` block; ``rows``, a
+        :func:`~seagul_learn.report.summarize` row per controller; the grid, the deployment and the animation's
+        episodes) and ``shipped/shipped_vs_lqr.gif``; a resumed run reads the stored result and evaluates nothing.
+        The shipped MPC's and LQR's episodes are stored in ``shipped/episodes``; the full-horizon MPC's are the
+        closed-loop evaluation's (``closed_loop/episodes``, same starts). A task without a shipped controller gets
+        ``{"block": None}``.
+        """
+        path = self.out / "shipped" / "shipped.json"
+        if path.is_file():
+            result: dict[str, Any] = json.loads(path.read_text())
+        else:
+            result = self._measure_shipped()
+            atomic_write_text(path, json.dumps(result, indent=2, allow_nan=True))
+        self.shipped = result.get("block")
+        return result
+
+    def _measure_shipped(self) -> dict[str, Any]:
+        from seagul_control.evaluation import PolicySpec, build_policy
+        from seagul_learn.report import controller_animation, hard_start, summarize
+
+        controller = shipped_network(self.task)
+        if controller is None:
+            return {"block": None, "task": self.task.name}
+        starts, grid = self.shipped_grid()
+        folder = self.out / "shipped" / "episodes"
+        spec = controller.spec(SHIPPED_LABEL, jit=self.config.shipped_jit)
+        lqr = PolicySpec("lqr", "LQR")
+        episodes = [r for policy in (spec, lqr) for r in self._episodes(policy, starts, False, folder=folder)]
+        paths_shown = self.task.profile.trajectory_plot is not None  # as the closed-loop evaluation stores them
+        _, reference_specs = self.baseline_specs()
+        full = [r for s in reference_specs for r in self._episodes(s, starts, paths_shown)]
+        rows = summarize(self.task, episodes + full)
+        by = {row["policy"]: row for row in rows}
+        ours, full_row = by[SHIPPED_LABEL], by[reference_specs[0].name]
+        x0 = hard_start(self.task)
+        policies = [(SHIPPED_LABEL, build_policy(self.task, spec)), ("LQR", build_policy(self.task, lqr))]
+        _, shown = controller_animation(self.task, policies, x0, self.out / "shipped" / "shipped_vs_lqr.gif")
+        n1, n2 = grid["shape"]
+        block = {
+            "network": controller.declared,
+            "horizon": controller.horizon,
+            "success_rate": float(ours["success_rate"]),
+            "full_horizon_success_rate": float(full_row["success_rate"]),
+            "median_ms": float(ours["median_step_ms"]),
+            "p95_ms": float(ours["p95_step_ms"]),
+            "lqr_success_rate": float(by["LQR"]["success_rate"]),
+            "full_horizon_median_ms": float(full_row["median_step_ms"]),
+            "full_horizon_p95_ms": float(full_row["p95_step_ms"]),
+            "trust_region": controller.trust_region,
+            "goal_blend": controller.goal_blend,
+            "jit": bool(self.config.shipped_jit),
+            "benchmark_jit": controller.jit,
+            "grid": f"{n1}x{n2}",
+            "starts": len(starts),
+            "network_file": str(controller.network),
+            "results": "shipped/shipped.json",
+            "animation": "shipped/shipped_vs_lqr.gif",
+            "benchmark": dict(controller.measured),
+            "benchmark_results": str(controller.source),
+        }
+        return {
+            "block": block,
+            "task": self.task.name,
+            "grid": grid,
+            "rows": rows,
+            "deployment": controller.describe(),
+            "animation": {
+                "path": block["animation"],
+                "start": [float(v) for v in x0],
+                "episodes": [
+                    {"policy": e.policy, "success": bool(e.success), "cost": float(e.cost), "steps": int(e.steps)}
+                    for e in shown
+                ],
+            },
+        }
+
     # --------------------------------------------------------------------------------------------- closed loop
     def learned_policies(self) -> list[LearnedPolicy]:
         """Every snapshot network of every (method, seed) run as a limited-lookahead MPC, by method, seed, budget."""
         from seagul_control.evaluation import PolicySpec
 
         p = self.preset
-        # IPOPT, not the MPC's default fatrop: fatrop looped without end inside single solves from shifted warm
-        # starts at extreme states (a fresh-clone quick run hung in this evaluation; docs/closed_loop.md). IPOPT's
-        # max_iter bounds every solve; its steps are slower, so step times here are IPOPT's.
+        # IPOPT, not fatrop: fatrop can loop without end inside a single solve from a shifted warm start at an
+        # extreme state (docs/experiments/closed-loop.md); IPOPT's max_iter bounds every solve. Its steps are
+        # slower, so step times here are IPOPT's.
         # The "lqr" guard, explicitly: the presets' networks (30-100 solves) are not the shipped recipe's, and the
-        # task's default guard ("none" for the built-ins) was measured on the recipe's networks.
+        # task's default guard ("none" for the built-ins) is measured on the recipe's networks.
         horizon = (("horizon", p.mpc_horizon), ("solver", "ipopt"), ("trust_region", "lqr"))
         out = []
         for method in p.methods:
@@ -629,13 +744,21 @@ class Experiment:
         return main, [PolicySpec("full", "full-horizon MPC")]
 
     def _episodes(
-        self, spec: Any, starts: np.ndarray, record: bool, record_queries: bool = False, env_id: str | None = None
+        self,
+        spec: Any,
+        starts: np.ndarray,
+        record: bool,
+        record_queries: bool = False,
+        env_id: str | None = None,
+        folder: Path | None = None,
     ) -> list[Any]:
-        """One policy's episodes (in ``env_id``, else the task's env), from its stored table if a previous
-        (interrupted) run finished it."""
+        """One policy's episodes (in ``env_id``, else the task's env), from its stored table if an interrupted run
+        finished it. Stored in ``folder`` (default ``closed_loop/episodes`` or ``closed_loop/episodes_<env>``) as
+        ``<slug of the label>.json``."""
         from seagul_control.evaluation import EpisodeResult, evaluate
 
-        folder = self.out / "closed_loop" / ("episodes" if env_id is None else f"episodes_{_slug(env_id)}")
+        if folder is None:
+            folder = self.out / "closed_loop" / ("episodes" if env_id is None else f"episodes_{_slug(env_id)}")
         path = folder / f"{_slug(spec.name)}.json"
         if path.is_file():
             return [EpisodeResult(**row) for row in json.loads(path.read_text())]
@@ -817,8 +940,16 @@ class Experiment:
         return paths
 
     # -------------------------------------------------------------------------------------------------- report
-    def write_report(self, runs: dict[str, Any], learning: dict[str, Any], closed_loop: dict[str, Any]) -> Path:
-        """``report.md`` and ``report.html`` with the figures, tables, settings, timings and versions."""
+    def write_report(
+        self,
+        runs: dict[str, Any],
+        learning: dict[str, Any],
+        closed_loop: dict[str, Any],
+        shipped: Mapping[str, Any] | None = None,
+    ) -> Path:
+        """``report.md`` and ``report.html``: the shipped controller (:meth:`evaluate_shipped`) first, then the
+        equal-budget comparison of the learning methods with its figures and tables, then settings, timings and
+        versions."""
         from seagul_learn.report import Section, Table, library_versions, machine_description, write_report
 
         p = self.preset
@@ -828,12 +959,18 @@ class Experiment:
         final_rows = [row for row in closed_loop["rows"] if row["policy"] in shown]
         names = ", ".join(f"{method_label(m)} (`{m}`)" for m in p.methods)
         sections = [
+            shipped_section(self.task, shipped or {"block": None}),
+            Section(
+                comparison_title(self.config.preset, p.budget, p.seeds),
+                [comparison_intro(self.task, p)],
+            ),
             Section(
                 "Summary",
                 [
                     learning_headline(learning, p.methods, p.budget, p.seeds),
                     closed_loop_headline(self.task, methods, closed_loop["baselines"], p.seeds),
                 ],
+                level=3,
             ),
             Section(
                 "Value-function learning (paper Fig. 1 / Fig. 3 left)",
@@ -860,6 +997,7 @@ class Experiment:
                     )
                 ],
                 [("validation_curves.png", "Validation MSE vs solves: median and 25-75 % band over seeds")],
+                level=3,
             ),
             Section(
                 "Closed loop (paper Fig. 2 / Fig. 3 centre / Fig. 4)",
@@ -899,6 +1037,7 @@ class Experiment:
                     ),
                 ],
                 closed_loop["figures"],
+                level=3,
             ),
             *([_other_envs_section(closed_loop["other_envs"], p.seeds)] if "other_envs" in closed_loop else []),
             Section(
@@ -908,12 +1047,14 @@ class Experiment:
                     + ", ".join(f"{method_label(m)} {learning['failures'][m]}" for m in p.methods)
                     + "."
                 ],
+                level=3,
             ),
             Section(
                 "Settings",
                 [
                     f"Task `{self.task.name}`, preset `{self.config.preset}`, workers {self.config.workers}, "
-                    f"backend `{self.config.backend}`. Run directory: `{self.out}`. TrainConfig overrides of the "
+                    f"backend `{self.config.backend}`, shipped MPC compiled: {self.config.shipped_jit}. Run "
+                    f"directory: `{self.out}`. TrainConfig overrides of the "
                     "methods (`METHODS`; the preset's `train_overrides` below come on top): "
                     + "; ".join(f"`{m}`: {METHODS[m]}" for m in p.methods)
                     + "."
@@ -927,7 +1068,7 @@ class Experiment:
             ),
             Section("Library versions", tables=[Table(["library", "version"], list(library_versions().items()))]),
         ]
-        title = f"Learning value functions for MPC ({', '.join(method_label(m) for m in p.methods)}): {self.task.name}"
+        title = f"Learned value functions as MPC terminal costs: {self.task.name}"
         return write_report(self.out, title, sections)
 
 
@@ -948,6 +1089,7 @@ def _other_envs_section(other: Mapping[str, Any], seeds: int) -> Any:
             "MuJoCo's RK4 integration of the same MJCF dynamics)."
         ],
         [Table(["controller", *[f"success in {e}" for e in envs]], rows)],
+        level=3,
     )
 
 
@@ -1116,6 +1258,135 @@ CLOSED_LOOP_COLUMNS = (
 
 def _pct(rate: float) -> str:
     return f"{rate:.0%}" if math.isfinite(rate) else "n/a"
+
+
+SHIPPED_COLUMNS = (
+    "controller", "episodes", "success", "median step (ms)", "p95 step (ms)", "median final distance", "mean cost",
+    "fallback steps",
+)  # fmt: skip
+"""Columns of the report's shipped-controller table."""
+
+
+def _fine_pct(rate: Any) -> str:
+    """A rate as a percentage with the decimals it has (0.9925 -> ``99.25%``); n/a when missing."""
+    try:
+        value = float(rate)
+    except (TypeError, ValueError):
+        return "n/a"
+    return f"{100 * value:.2f}".rstrip("0").rstrip(".") + "%" if math.isfinite(value) else "n/a"
+
+
+def _ms(value: Any) -> str:
+    return f"{float(value):.2f} ms" if value is not None and math.isfinite(float(value)) else "n/a"
+
+
+def shipped_section(task: Task, result: Mapping[str, Any]) -> Any:
+    """The report's first section: the shipped controller in closed loop beside LQR and the full-horizon MPC (the
+    result of :meth:`Experiment.evaluate_shipped`), or a line saying the task has none."""
+    from seagul_learn.report import Section, Table
+    from seagul_learn.shipped import SHIPPED_RESULTS
+
+    title = f"Shipped controller: {task.name} in closed loop"
+    block = result.get("block")
+    if block is None:
+        return Section(
+            title,
+            [
+                f"Task `{task.name}` has no shipped controller (no block with a network for it in "
+                f"`{SHIPPED_RESULTS.name}` of the closed-loop benchmark, or not the registered task of that name): "
+                "this report is the comparison of the learning methods only."
+            ],
+        )
+    rows = {row["policy"]: row for row in result["rows"]}
+    n1, n2 = result["grid"]["shape"]
+    bench = block.get("benchmark", {})
+    step = f"median {_ms(block['median_ms'])}, p95 {_ms(block['p95_ms'])}"
+    jit = bool(block.get("jit"))
+    if jit:
+        timing = f"Step time of the shipped MPC, compiled as the benchmark deploys it: {step}."
+    else:
+        timing = (
+            "Step time of the shipped MPC with CasADi interpreted (jit off in this run; `--shipped-jit` compiles it, "
+            f"about 2 minutes of gcc on a cold cache): {step}"
+            + (
+                f"; compiled, the benchmark measured {_ms(bench['median_ms'])} / {_ms(bench['p95_ms'])}."
+                if "median_ms" in bench and "p95_ms" in bench
+                else "."
+            )
+        )
+    headline = (
+        f"**The shipped MPC manages to {task.profile.success_phrase(task)} from {_pct(block['success_rate'])} of "
+        f"the {n1} x {n2} grid starts**; from the same starts LQR {_pct(block['lqr_success_rate'])} and the "
+        f"full-horizon MPC {_pct(block['full_horizon_success_rate'])}. {timing}"
+    )
+    source = bench_text = ""
+    if bench:
+        heldout = bench.get("heldout_success_rate")
+        bench_text = (
+            f" It was trained with the task's recipe (`{bench.get('method', 'shipped')}`, "
+            f"{int(bench.get('budget', 0)):,} solves) and measured by the benchmark at "
+            f"{_fine_pct(bench.get('success_rate'))} of a {bench.get('grid', '?')} grid"
+            + (f" and {_fine_pct(heldout)} of {bench.get('heldout_starts', '?')} held-out starts" if heldout else "")
+            + "; those are the benchmark's figures, the table below is this run's."
+        )
+        source = f" (`benchmarks/results/{SHIPPED_RESULTS.name}`, its `{task.name}` block)"
+    deployment = (
+        f"The controller: {result['deployment']}, deployed as the closed-loop benchmark's results say{source}, "
+        f"{'compiled' if jit else 'with jit off'}.{bench_text} Starts: the report's {n1} x {n2} reference grid over "
+        f"({', '.join(result['grid']['dims'])}), where the full-horizon MPC (it solves the whole problem at every "
+        "step, so it runs on the coarser grid only) is evaluated for the comparison below too. Success: "
+        f"{task.profile.describe_success(task)}."
+    )
+    table = Table(
+        list(SHIPPED_COLUMNS),
+        [
+            [
+                name,
+                row["episodes"],
+                _pct(row["success_rate"]),
+                row["median_step_ms"],
+                row["p95_step_ms"],
+                row["median_final_distance"],
+                row["mean_cost"],
+                row["fallback_steps"],
+            ]
+            for name, row in rows.items()
+        ],
+    )
+    animation = result["animation"]
+    outcome = ", ".join(
+        f"{e['policy']} {'succeeds' if e['success'] else 'fails'} (cost {e['cost']:.1f})" for e in animation["episodes"]
+    )
+    start = ", ".join(f"{name} = {value:.3g}" for name, value in zip(task.state_names, animation["start"], strict=True))
+    caption = f"The shipped MPC and LQR from the hard corner of X0 ({start}), in real time: {outcome}."
+    return Section(title, [headline, deployment], [table], [(animation["path"], caption)])
+
+
+def comparison_title(preset: str, budget: int, seeds: int) -> str:
+    """Heading of the report's part that compares the learning methods (never the shipped recipe)."""
+    size = "Quick equal-budget" if preset == "quick" else "Equal-budget"
+    return f"{size} comparison of the samplers ({budget} solves per network, {seeds} seeds): not the shipped recipe"
+
+
+def comparison_intro(task: Task, preset: Preset) -> str:
+    """What the comparison measures and how it differs from the shipped controller."""
+    names = ", ".join(method_label(m) for m in preset.methods)
+    recipe = task.profile.train_recipe
+    shipped = ""
+    if "budget" in recipe:
+        hidden = recipe.get("hidden")
+        shipped = (
+            " The shipped network comes from the task's recipe (`TrainConfig.recipe`: "
+            f"{int(recipe['budget']):,} solves, `{recipe.get('sampler', 'uniform')}` sampler"
+            + (f", hidden layers {tuple(hidden)}" if hidden else "")
+            + "); these networks are the library's default size, trained on the preset's schedule."
+        )
+    return (
+        f"Everything below compares the ways of learning the value function ({names}) at one small, equal budget: "
+        f"{preset.budget} solves per network over {preset.seeds} paired seeds, each network deployed in a "
+        f"{preset.mpc_horizon}-step MPC with IPOPT and the `lqr` guard. It ranks the samplers against each other "
+        f"at this budget; it does not measure the shipped controller above.{shipped}"
+    )
 
 
 def learning_headline(learning: Mapping[str, Any], methods: Sequence[str], budget: int, seeds: int) -> str:

@@ -9,9 +9,12 @@ Fig. 4) and, for a task with a ``profile.trajectory_plot`` (the glider), ``traje
 (:func:`plot_trajectories`; x-z paths, Fig. 3 centre). Every function takes a Task or a registered task name.
 matplotlib is imported only inside the figure functions (Agg backend, headless).
 
+:func:`controller_animation` draws one closed-loop episode per controller side by side as an animated GIF, from a
+given start such as :func:`hard_start` (the corner of X0 farthest from the goal).
+
 The report (Markdown with embedded figures, plus a self-contained HTML copy) is assembled from plain data (sections
-of text, tables as lists of rows, figure paths), so every stage of an experiment can add to it without knowing how
-it is rendered.
+of text with a heading level, tables as lists of rows, PNG or GIF figure paths), so every stage of an experiment can
+add to it without knowing how it is rendered.
 """
 
 from __future__ import annotations
@@ -113,6 +116,17 @@ def write_outputs(
 
 
 # ------------------------------------------------------------------------------------------------ animations
+def hard_start(task: Task | str) -> np.ndarray:
+    """The corner of X0 farthest from the goal in the evaluation grid's coordinates (``task.profile.grid``; every
+    coordinate when it names none), the others at X0's centre: acrobot ``(th1, th2) = (pi - 0.3, -0.3)`` at rest."""
+    task = resolve_task(task)
+    x = 0.5 * (np.asarray(task.x0_low, dtype=float) + np.asarray(task.x0_high, dtype=float))
+    for i in task.profile.grid.coords or range(task.nx):
+        lo, hi = float(task.x0_low[i]), float(task.x0_high[i])
+        x[i] = lo if abs(lo - task.goal[i]) >= abs(hi - task.goal[i]) else hi
+    return x
+
+
 def controller_animation(
     task: Task | str,
     policies: Sequence[tuple[str, Any]],
@@ -305,7 +319,9 @@ class Section:
     tables: list[Table] = field(default_factory=list)
     """Tables."""
     figures: list[tuple[str, str]] = field(default_factory=list)
-    """``(path relative to the report, caption)`` pairs."""
+    """``(path relative to the report, caption)`` pairs (PNG or GIF)."""
+    level: int = 2
+    """Heading level (2: a part of the report, 3: a subsection of the part before it)."""
 
 
 def library_versions() -> dict[str, str]:
@@ -345,7 +361,7 @@ def render_markdown(title: str, sections: Sequence[Section]) -> str:
     """Markdown text of the report (figures referenced by relative path)."""
     lines = [f"# {title}", ""]
     for section in sections:
-        lines += [f"## {section.title}", ""]
+        lines += [f"{'#' * section.level} {section.title}", ""]
         for paragraph in section.paragraphs:
             lines += [paragraph, ""]
         for table in section.tables:
@@ -366,8 +382,11 @@ def _inline_markdown(text: str) -> str:
     return re.sub(r"\*\*([^*]+)\*\*", r"<b>\1</b>", text)
 
 
+_IMAGE_TYPES = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".jpeg": "image/jpeg"}
+
+
 def render_html(title: str, sections: Sequence[Section], base_dir: Path) -> str:
-    """Self-contained HTML (figures embedded as base64 PNG) that opens in any browser."""
+    """Self-contained HTML (figures, PNG or animated GIF, embedded as base64) that opens in any browser."""
     parts = [
         "<!DOCTYPE html><html><head><meta charset='utf-8'>",
         f"<title>{html.escape(title)}</title>",
@@ -378,7 +397,7 @@ def render_html(title: str, sections: Sequence[Section], base_dir: Path) -> str:
         f"<h1>{html.escape(title)}</h1>",
     ]
     for section in sections:
-        parts.append(f"<h2>{html.escape(section.title)}</h2>")
+        parts.append(f"<h{section.level}>{html.escape(section.title)}</h{section.level}>")
         parts += [f"<p>{_inline_markdown(p)}</p>" for p in section.paragraphs]
         for table in section.tables:
             parts.append("<table><tr>" + "".join(f"<th>{html.escape(h)}</th>" for h in table.header) + "</tr>")
@@ -389,7 +408,7 @@ def render_html(title: str, sections: Sequence[Section], base_dir: Path) -> str:
             figure = base_dir / path
             if figure.exists():
                 data = base64.b64encode(figure.read_bytes()).decode("ascii")
-                src = f"data:image/png;base64,{data}"
+                src = f"data:{_IMAGE_TYPES.get(figure.suffix.lower(), 'image/png')};base64,{data}"
             else:
                 src = html.escape(path)
             parts.append(f"<figure><img src='{src}' alt='{html.escape(caption)}'>")

@@ -63,6 +63,77 @@ def test_reproduce_writes_report_with_figures_and_tables(smoke_run: tuple[Path, 
     assert {"validation set", "training", "closed-loop evaluation", "total"} <= set(stored["timings"])
 
 
+def test_report_opens_with_the_shipped_controller(smoke_run: tuple[Path, str]) -> None:
+    """The first part of the report is the shipped MPC beside LQR and the full-horizon MPC with its animation; the
+    comparison of the samplers follows under a heading that says it is not the shipped recipe."""
+    out, _ = smoke_run
+    text = (out / "report.md").read_text()
+    parts = [line for line in text.splitlines() if line.startswith("## ")]
+    assert parts[0] == "## Shipped controller: acrobot in closed loop"
+    assert parts[1].startswith("## Equal-budget comparison of the samplers (4 solves per network, 2 seeds)")
+    assert parts[1].endswith("not the shipped recipe")
+    shipped = text[text.index(parts[0]) : text.index(parts[1])]
+    for row in ("| shipped MPC |", "| LQR |", "| full-horizon MPC |"):
+        assert row in shipped
+    assert "**The shipped MPC manages to reach the goal" in shipped and "with CasADi interpreted" in shipped
+    assert "](shipped/shipped_vs_lqr.gif)" in shipped
+    page = (out / "report.html").read_text()
+    assert page.index("<h2>Shipped controller: acrobot in closed loop</h2>") < page.index("<h2>Equal-budget")
+    assert page.index("data:image/gif;base64,") < page.index("<h2>Equal-budget")  # the GIF is embedded
+    from PIL import Image
+
+    with Image.open(out / "shipped" / "shipped_vs_lqr.gif") as gif:
+        assert gif.format == "GIF" and gif.n_frames > 10
+    result = json.loads((out / "shipped" / "shipped.json").read_text())
+    assert [e["policy"] for e in result["animation"]["episodes"]] == ["shipped MPC", "LQR"]
+    assert result["animation"]["start"] == pytest.approx([math.pi - 0.3, -0.3, 0.0, 0.0])
+
+
+def test_experiment_json_has_the_shipped_block(smoke_run: tuple[Path, str]) -> None:
+    from seagul_learn.shipped import SHIPPED_RESULTS
+
+    out, _ = smoke_run
+    block = json.loads((out / "experiment.json").read_text())["shipped"]
+    declared = json.loads(SHIPPED_RESULTS.read_text())["acrobot"]
+    assert block["network"] == declared["network"] and isinstance(block["network"], str)
+    assert block["horizon"] == declared["horizon"] and type(block["horizon"]) is int
+    for key in ("success_rate", "full_horizon_success_rate", "median_ms", "p95_ms"):
+        assert type(block[key]) is float, key
+    assert 0.0 <= block["success_rate"] <= 1.0 and 0.0 <= block["full_horizon_success_rate"] <= 1.0
+    assert 0.0 < block["median_ms"] <= block["p95_ms"]
+    assert block["jit"] is False and block["grid"] == "1x1" and block["starts"] == 1
+    # The numbers are this run's: the shipped MPC's stored episodes, the full horizon's from the reference grid.
+    ours = json.loads((out / "shipped" / "episodes" / "shipped-mpc.json").read_text())
+    assert block["success_rate"] == sum(e["success"] for e in ours) / len(ours)
+    full = json.loads((out / "closed_loop" / "episodes" / "full-horizon-mpc.json").read_text())
+    assert block["full_horizon_success_rate"] == sum(e["success"] for e in full) / len(full)
+    assert [e["start"] for e in ours] == [e["start"] for e in full]  # the same starts
+
+
+def test_resume_reuses_the_shipped_evaluation(smoke_run: tuple[Path, str]) -> None:
+    """A resumed run reads ``shipped/shipped.json``: no episode is run again, the GIF is not redrawn."""
+    import shutil
+
+    out, _ = smoke_run
+    stored = (out / "shipped" / "shipped.json").read_text()
+    gif = (out / "shipped" / "shipped_vs_lqr.gif").stat().st_mtime_ns
+    block = json.loads((out / "experiment.json").read_text())["shipped"]
+    episodes = out / "shipped" / "episodes"
+    kept = out / "shipped_episodes_kept"
+    shutil.copytree(episodes, kept)
+    shutil.rmtree(episodes)
+    try:
+        assert main(["reproduce", "acrobot", "--resume", str(out), "--no-progress"]) == 0
+        assert not episodes.exists()  # evaluating again would have stored them
+        assert (out / "shipped" / "shipped.json").read_text() == stored
+        assert (out / "shipped" / "shipped_vs_lqr.gif").stat().st_mtime_ns == gif
+        assert json.loads((out / "experiment.json").read_text())["shipped"] == block
+        assert (out / "report.md").read_text().startswith("# Learned value functions as MPC terminal costs")
+    finally:
+        shutil.rmtree(episodes, ignore_errors=True)
+        shutil.move(kept, episodes)
+
+
 def test_summary_has_per_seed_statistics_of_every_method(smoke_run: tuple[Path, str]) -> None:
     out, _ = smoke_run
     summary = json.loads((out / "closed_loop" / "summary.json").read_text())
@@ -241,7 +312,7 @@ def test_sb3_models_are_baselines_next_to_lqr(sb3_models: dict[str, str], tmp_pa
 
     assert isinstance(build_policy("acrobot", main_specs[2]).model, SAC)  # the algo option reaches SB3Policy
     assert isinstance(build_policy("acrobot", main_specs[1]).model, PPO)
-    # Without sb3 models the baselines are today's (an old run's stored episodes keep their names).
+    # Without sb3 models LQR is the only main-grid baseline (its stored episodes keep their name).
     assert Experiment(ExperimentConfig(preset="smoke"), tmp_path).baseline_specs()[0] == [PolicySpec("lqr", "LQR")]
 
 
@@ -267,7 +338,7 @@ def test_sb3_config_errors_name_the_bad_value(sb3_models: dict[str, str], tmp_pa
 
 
 def test_old_experiment_file_with_ppo_model_resumes(sb3_models: dict[str, str], tmp_path: Path) -> None:
-    """An ``experiment.json`` written before ``sb3_models``/``sb3_algo`` existed loads with their defaults."""
+    """An ``experiment.json`` without ``sb3_models``/``sb3_algo`` loads with their defaults."""
     from seagul_control.evaluation import PolicySpec
 
     old = {"task": "acrobot", "preset": "smoke", "seeds": None, "workers": 1, "backend": "local",

@@ -23,7 +23,7 @@ from seagul_learn.report import (
     write_report,
 )
 
-# The summary table of `_episodes()` as `seagul_control.evaluation.summarize` wrote it before it moved here.
+# The summary table of `_episodes()`.
 EXPECTED_CSV = """\
 policy,episodes,success_rate,mean_final_distance,median_final_distance,mean_cost,median_cost,crashes,\
 median_step_ms,p95_step_ms,max_step_ms,mean_iterations,fallback_steps,steps
@@ -47,7 +47,7 @@ def _episodes() -> list[EpisodeResult]:
     ]
 
 
-def test_summarize_gives_the_same_rows_as_before_the_move():
+def test_summarize_gives_one_row_per_policy():
     rows = summarize("acrobot", _episodes())
     assert [r["policy"] for r in rows] == ["mpc", "lqr"]
     mpc, lqr = rows
@@ -74,7 +74,7 @@ def test_summarize_gives_the_same_rows_as_before_the_move():
     assert list(glider[0])[:-1] == list(mpc)
 
 
-def test_write_outputs_writes_the_same_tables_and_figures_as_before_the_move(tmp_path: Path):
+def test_write_outputs_writes_the_tables_and_figures(tmp_path: Path):
     episodes = _episodes()
     paths = write_outputs(tmp_path, "acrobot", episodes, GRID, {"note": 1})
     assert set(paths) == {"results", "summary_json", "summary_csv", "heatmap"}
@@ -123,6 +123,32 @@ def test_write_report_embeds_figures_and_tables(tmp_path: Path):
     assert "src='missing.png'" in page  # a missing one stays a link instead of failing
     assert "<b>uniform</b>" in page and "<code>mse_initial</code>" in page
     assert not list(tmp_path.glob("*.tmp"))
+
+
+def test_report_parts_and_subsections_and_an_embedded_gif(tmp_path: Path):
+    """A section's ``level`` sets its heading (part or subsection); a GIF figure is linked in Markdown and embedded
+    as ``image/gif`` in HTML, a PNG as ``image/png``."""
+    from PIL import Image
+
+    frames = [Image.new("RGB", (8, 8), c) for c in ("red", "blue")]
+    frames[0].save(tmp_path / "anim.gif", save_all=True, append_images=frames[1:], duration=100, loop=0)
+    frames[0].save(tmp_path / "still.png")
+    sections = [
+        Section("Product", ["first"], figures=[("anim.gif", "An animation")]),
+        Section("Comparison"),
+        Section("Detail", ["inside"], figures=[("still.png", "A still")], level=3),
+    ]
+    text = write_report(tmp_path, "Levels", sections).read_text()
+    assert [line for line in text.splitlines() if line.startswith("#")] == [
+        "# Levels",
+        "## Product",
+        "## Comparison",
+        "### Detail",
+    ]
+    assert "![An animation](anim.gif)" in text
+    page = (tmp_path / "report.html").read_text()
+    assert "<h2>Product</h2>" in page and "<h3>Detail</h3>" in page
+    assert page.index("data:image/gif;base64,") < page.index("<h2>Comparison</h2>") < page.index("data:image/png")
 
 
 def test_library_versions_names_core_libraries():

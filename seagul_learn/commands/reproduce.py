@@ -1,14 +1,15 @@
-"""``seagul reproduce``: the paper's experiment for one task end to end: uniform, adversarial (SEAGuL) and
-closed-loop value-function learning over paired seeds, closed-loop MPC statistics for every seed, and a report (see
+"""``seagul reproduce``: the paper's experiment for one task end to end: the task's shipped controller in closed loop
+beside LQR and the full-horizon MPC, then uniform, adversarial (SEAGuL) and closed-loop value-function learning at
+an equal budget over paired seeds, closed-loop MPC statistics for every seed, and a report (see
 :mod:`seagul_learn.experiment`).
 
 The options are one per :class:`~seagul_learn.experiment.ExperimentConfig` field (see
-:mod:`seagul_learn.commands._config`; ``--ppo`` is the historical spelling of ``--ppo-model``, itself the deprecated
-spelling of ``--sb3 MODEL --sb3-algo PPO``; ``--no-progress`` the ``progress`` field's negative form); ``--out`` and
-``--resume`` are not config fields. ``sb3_models`` is the one field declared here rather than derived: ``--sb3 MODEL``
-adds one model and may be repeated, ``--sb3-models A.zip,B.zip`` adds a comma-separated list (both add to the same
-list, in the order given), e.g. ``seagul reproduce acrobot --sb3 runs/sac_a/model.zip --sb3 runs/sac_b/model.zip
---sb3-algo SAC``."""
+:mod:`seagul_learn.commands._config`; ``--ppo`` is an alias of ``--ppo-model``, itself a deprecated spelling of
+``--sb3 MODEL --sb3-algo PPO``; ``--no-progress`` is the ``progress`` field's negative form; ``--shipped-jit``
+compiles the shipped MPC); ``--out`` and ``--resume`` are not config fields. ``sb3_models`` is the one field declared
+here rather than derived: ``--sb3 MODEL`` adds one model and may be repeated, ``--sb3-models A.zip,B.zip`` adds a
+comma-separated list (both add to the same list, in the order given), e.g. ``seagul reproduce acrobot --sb3
+runs/sac_a/model.zip --sb3 runs/sac_b/model.zip --sb3-algo SAC``."""
 
 from __future__ import annotations
 
@@ -115,8 +116,8 @@ def run(args: argparse.Namespace) -> int:
 
 COMMAND = Command(
     name="reproduce",
-    help="run the paper's experiment for a task (uniform vs SEAGuL vs closed-loop learning, per-seed MPC "
-    "evaluation) and write a report",
+    help="run the paper's experiment for a task (the shipped controller, then uniform vs SEAGuL vs closed-loop "
+    "learning at an equal budget with per-seed MPC evaluation) and write a report",
     add_arguments=add_arguments,
     run=run,
 )
