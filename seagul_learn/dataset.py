@@ -48,6 +48,8 @@ import io
 import json
 import os
 import re
+import shutil
+import uuid
 from collections.abc import Iterable, Sequence
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -234,9 +236,21 @@ class Dataset:
             raise DatasetError(f"cannot create a dataset at {str(path)!r}: it is a file, not a directory")
         if path.exists() and any(path.iterdir()):
             raise DatasetError(f"cannot create a dataset in {str(path)!r}: the directory exists and is not empty")
-        (path / "records").mkdir(parents=True, exist_ok=True)
+        # Created whole beside its place and renamed into it, so that processes creating the same dataset at once
+        # (workers filling a shared validation cache) never see a half-made one: the first rename wins, the others
+        # open the winner's (a rename onto a non-empty directory fails).
         info = {"format": FORMAT_TAG, "version": FORMAT_VERSION, "task": task_name, "meta": _jsonable(meta or {})}
-        atomic_write_bytes(header, json.dumps(info, indent=2, sort_keys=True).encode())
+        path.parent.mkdir(parents=True, exist_ok=True)
+        staging = path.parent / f".tmp-{path.name}-{os.getpid()}-{uuid.uuid4().hex}"
+        (staging / "records").mkdir(parents=True)
+        try:
+            atomic_write_bytes(staging / "dataset.json", json.dumps(info, indent=2, sort_keys=True).encode())
+            os.rename(staging, path)
+        except OSError:
+            shutil.rmtree(staging, ignore_errors=True)
+            if header.is_file():  # another process created it first
+                return cls.open(path, task_name, meta)
+            raise
         return cls(path, task_name, info["meta"])
 
     def record_path(self, index: int) -> Path:

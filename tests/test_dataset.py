@@ -186,3 +186,30 @@ def test_failed_record_write_keeps_the_dataset_readable(tmp_path, toy, monkeypat
     monkeypatch.undo()
     assert ds.indices() == [0] and not list(ds.records_dir.glob(".tmp-*"))
     assert ds.read(0).index == 0
+
+
+def test_datasets_created_at_once_by_many_workers_are_one(tmp_path):
+    """Workers that create the same new dataset at once (a validation cache filled by parallel training runs) all
+    open it: none sees a half-made directory ("exists and is not empty") and no staging directory is left."""
+    import threading
+
+    for trial in range(10):
+        path = tmp_path / f"validation-{trial}"
+        barrier = threading.Barrier(8)
+        opened, errors = [], []
+
+        def create(path=path, barrier=barrier, opened=opened, errors=errors):
+            barrier.wait()
+            try:
+                opened.append(Dataset.open(path, "acrobot", meta={"solver": "s"}))
+            except Exception as exc:
+                errors.append(exc)
+
+        threads = [threading.Thread(target=create) for _ in range(8)]
+        for t in threads:
+            t.start()
+        for t in threads:
+            t.join()
+        assert not errors, errors
+        assert len(opened) == 8 and all(d.meta == {"solver": "s"} for d in opened)
+    assert sorted(p.name for p in tmp_path.iterdir()) == [f"validation-{i}" for i in range(10)]
