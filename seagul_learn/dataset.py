@@ -235,6 +235,8 @@ class Dataset:
         if path.exists() and not path.is_dir():
             raise DatasetError(f"cannot create a dataset at {str(path)!r}: it is a file, not a directory")
         if path.exists() and any(path.iterdir()):
+            if header.is_file():  # another process created it since the check above
+                return cls.open(path, task_name, meta)
             raise DatasetError(f"cannot create a dataset in {str(path)!r}: the directory exists and is not empty")
         # Created whole beside its place and renamed into it, so that processes creating the same dataset at once
         # (workers filling a shared validation cache) never see a half-made one: the first rename wins, the others
