@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import math
 import sys
 import time
 from pathlib import Path
@@ -118,16 +119,13 @@ def learned_row(task_name: str) -> dict[str, Any]:
     block = json.loads(path.read_text()).get(task_name)
     if not block:
         return {"method": "learned MPC", "source": f"not run for {task_name}"}
-    train = block.get("train_settings", {})
-    episodes = int(train.get("cl_episodes", 0))
-    tail_solves = int(block["budget"]) - int(train.get("cl_uniform_solves", 0))
-    rounds = max(0, tail_solves // int(train.get("solves_per_round", 50)))
-    steps_per_episode = round(make_task(task_name).tau_nominal / make_task(task_name).control_period)
+    collection, selection = training_env_steps(task_name, block)
     return {
         "method": f"learned {block['horizon']}-step MPC ({block['method']}, {block['seeds']} seeds)",
         "nlp_solves": int(block["budget"]),
-        # The closed-loop sampler's collection episodes are the only environment steps of its training.
-        "env_steps": rounds * episodes * steps_per_episode if block["method"].startswith("closed-loop") else 0,
+        "env_steps": collection + selection,
+        "collection_env_steps": collection,
+        "selection_env_steps": selection,
         "train_wall_s": block.get("wall_s"),
         "grid_success": block["success_rate"],
         "heldout_success": block["heldout_success_rate"],
@@ -135,6 +133,29 @@ def learned_row(task_name: str) -> dict[str, Any]:
         "p95_ms": block["p95_ms"],
         "source": "benchmarks/results/closed_loop.json",
     }
+
+
+def training_env_steps(task_name: str, block: dict[str, Any]) -> tuple[int, int]:
+    """Environment steps spent making a ``closed_loop.json`` block's network: the closed-loop sampler's collection
+    episodes, and the episodes its refit selection flies (every ``refit_ensemble``-subset of the
+    ``refit_candidates`` refits ``select_episodes`` starts, the best ``select_finalists`` subsets
+    ``select_final_episodes`` more; the selection settings are the task's recipe, which the block's method trains)."""
+    task = make_task(task_name)
+    steps_per_episode = round(task.tau_nominal / task.control_period)
+    train = block.get("train_settings", {})
+    if not block["method"].startswith("closed-loop"):
+        return 0, 0
+    tail_solves = int(block["budget"]) - int(train.get("cl_uniform_solves", 0))
+    rounds = max(0, tail_solves // int(train.get("solves_per_round", 50)))
+    collection = rounds * int(train.get("cl_episodes", 0)) * steps_per_episode
+    recipe = dict(task.profile.train_recipe or {})
+    candidates, size = int(recipe.get("refit_candidates", 0)), int(recipe.get("refit_ensemble", 1))
+    if candidates <= size or int(recipe.get("refit_steps", 0)) <= 0:
+        return collection, 0
+    subsets = math.comb(candidates, size)
+    finalists = min(int(recipe.get("select_finalists", 0)), subsets)
+    episodes = subsets * int(recipe.get("select_episodes", 0)) + finalists * int(recipe.get("select_final_episodes", 0))
+    return collection, episodes * steps_per_episode
 
 
 def sampler_rows(task_name: str, lat: np.ndarray | None = None) -> list[dict[str, Any]]:
@@ -251,7 +272,14 @@ def rows_in_env(
     block = json.loads(path.read_text()).get(task.name) if path.is_file() else None
     if block:
         row = measured_row(task, "learned", learned_spec(block), starts, n_grid, lat, None, env_id)
-        row.update(method=f"learned {block['horizon']}-step MPC (shipped network)", nlp_solves=int(block["budget"]))
+        collection, selection = training_env_steps(task.name, block)
+        row.update(
+            method=f"learned {block['horizon']}-step MPC (shipped network)",
+            nlp_solves=int(block["budget"]),
+            env_steps=collection + selection,
+            collection_env_steps=collection,
+            selection_env_steps=selection,
+        )
         rows.append(row)
     rows.append(measured_row(task, "LQR", PolicySpec("lqr", "lqr"), starts, n_grid, lat, None, env_id))
     if not quick:

@@ -52,9 +52,10 @@ CURRENT: dict[str, tuple[str, str]] = {
     ),
     "closed_loop.json": (
         "closed-loop success per solve of every learning method (median of seeds per budget), the shipped "
-        "method's block per task (network, deployment, step time, planner-query error)",
-        "python benchmarks/bench_closed_loop.py --aggregate benchmarks/results/closed_loop_b1000_rest --compare ... "
-        "--update benchmarks/results/closed_loop.json (in full: docs/experiments/closed-loop.md)",
+        "method's block per task (network, deployment, step time, planner-query error); aggregated from the "
+        "per-seed folders below by `bench_closed_loop.py --aggregate` with one `--compare` per method (the "
+        "commands in full: docs/experiments/closed-loop.md)",
+        "",
     ),
     "closed_loop_b1000_rest/": (
         "per-seed evaluations of the shipped acrobot recipe (closed-loop+rest-1000) and its selection logs",
@@ -74,8 +75,8 @@ CURRENT: dict[str, tuple[str, str]] = {
     ),
     "closed_loop_glider/": (
         "the glider's shipped method (keep-best), its last-network variant to 5,000 solves, the paper's samplers "
-        "to 5,000 solves, and the full-horizon evaluation",
-        "python benchmarks/bench_closed_loop.py --tasks glider ... (in full: docs/experiments/closed-loop.md)",
+        "to 5,000 solves, and the full-horizon evaluation (commands: docs/experiments/closed-loop.md)",
+        "",
     ),
     "mpc_solvers_acrobot.json": (
         "the acrobot lookahead on the condensed solver (with and without extra starts) against fatrop",
@@ -91,18 +92,18 @@ CURRENT: dict[str, tuple[str, str]] = {
         "benchmarks/results/param_adversary.json",
     ),
     "rl_baselines.json": (
-        "SB3 PPO and SAC per task: success, learning curves, sweep, models",
-        "python benchmarks/bench_rl_baselines.py --tasks acrobot|glider --update benchmarks/results/rl_baselines.json "
-        "(settings per run: docs/experiments/rl-baselines.md)",
+        "SB3 PPO and SAC per task: success, learning curves, sweep, models (each run's settings: "
+        "docs/experiments/rl-baselines.md)",
+        "python benchmarks/bench_rl_baselines.py --tasks acrobot --update benchmarks/results/rl_baselines.json",
     ),
     "rl_sweep.json": (
         "the hyperparameter sweep of the RL baselines",
         "python benchmarks/bench_rl_baselines.py --sweep",
     ),
     "rl_glider_early.json": (
-        "the glider's RL curves over their first steps (PPO to 300 k, SAC to 40 k)",
-        "python benchmarks/bench_rl_baselines.py --tasks glider --steps glider:PPO=300000,glider:SAC=40000 ... "
-        "(in full: docs/experiments/rl-baselines.md)",
+        "the glider's RL curves over their first steps (PPO to 300 k, SAC to 40 k; command: "
+        "docs/experiments/rl-baselines.md)",
+        "",
     ),
     "sample_efficiency_acrobot_20seeds.json": (
         "the paper's metric: validation error of SEAGuL against uniform sampling, 20 paired seeds, 5,000 steps",
@@ -227,7 +228,7 @@ def _short_name(method: str) -> str:
         return method.split(" (")[0]
     inner = method[method.find("(") + 1 : method.rfind(")")].split(",")[0].strip()
     head = method.split(" (")[0]
-    return f"{head}, shipped" if inner.startswith("closed-loop") else f"{head}, {inner} sampler"
+    return f"{head}, shipped" if inner.startswith(("closed-loop", "shipped")) else f"{head}, paper sampler {inner}"
 
 
 def controller_rows(task: str, *, brief: bool) -> list[list[str]]:
@@ -261,7 +262,7 @@ def readme_block() -> str:
         "Medians over seeds for learned controllers; success is the task's own rule on starts never trained on. "
         "Sources: `benchmarks/results/controllers_acrobot.json` and `controllers_glider.json` "
         "([all results, with the commands](docs/results.md)). The RL rows use raw-angle observations and the "
-        "task's cost as reward: they are not yet tuned the way RL practitioners would set them up, so they are "
+        "task's cost as reward: they are not tuned the way RL practitioners would set them up, so they are "
         "a lower bound on what RL reaches.",
     ])
 
@@ -277,8 +278,11 @@ def section_controllers() -> str:
     out.append(
         "Each row is one controller of the task on the evaluation grid (the paper's heat-map starts) and on 100 "
         "starts drawn from X0 that no method trained on. Learned rows are medians over seeds of "
-        "`closed_loop.json`; the step time is one process on the machine named below. NLP solves and "
-        "environment steps are what it cost to make the controller."
+        "`closed_loop.json`. Step times are the median and 95th percentile of one process's time per closed-loop "
+        "step, taken from the file named under each table for that row (the rows timed by the command ran on the "
+        "machine and at the load named there). NLP solves and environment steps are what it cost to make the "
+        "controller (for the learned MPC: the closed-loop sampler's collection episodes plus the episodes its "
+        "refit selection flies)."
     )
     for task, title in (("acrobot", "Acrobot (analytic model)"), ("acrobot_mujoco", "Acrobot in MuJoCo"),
                         ("glider", "Glider (perching)")):
@@ -333,8 +337,10 @@ def section_success_per_solve() -> str:
             "",
             f"![success per solve, {task}](figures/results/success_vs_solves_{task}.png)",
         ]
-    out += ["", f"Command: `{CURRENT['closed_loop.json'][1]}` (per-seed runs: see the index of "
-            "`benchmarks/results/README.md`)."]
+    out += ["", "Commands: each method's per-seed runs are trained and evaluated by `benchmarks/bench_closed_loop.py` "
+            "(the index `benchmarks/results/README.md` names the folders) and aggregated into `closed_loop.json` by "
+            "its `--aggregate` mode; the commands in full are in the "
+            "[experiment log](experiments/closed-loop.md)."]
     return "\n".join(out)
 
 
@@ -378,7 +384,7 @@ def section_rl() -> str:
     out.append(
         "Stable-Baselines3 PPO and SAC trained on the Gymnasium environments (raw-angle observations, the task's "
         "trajectory cost as reward; the glider with a penalty for missing the perch), scored by the task's success "
-        "rule on the same starts as the MPCs. These settings are not yet those an RL practitioner would pick "
+        "rule on the same starts as the MPCs. These settings are not those an RL practitioner would pick "
         "(sin/cos features, a bounded success-aware reward, actions in [-1, 1]); read the rows as a lower bound."
     )
     rows = []
@@ -392,7 +398,9 @@ def section_rl() -> str:
                        "grid success per seed", "training s", "model"], rows)]
     out += ["", "![RL curves, acrobot](figures/results/rl_curves_acrobot.png)", "",
             "![RL curves, glider](figures/results/rl_curves_glider.png)", "",
-            f"Command: `{CURRENT['rl_baselines.json'][1]}` -> `benchmarks/results/rl_baselines.json`."]
+            "Command: `python benchmarks/bench_rl_baselines.py --tasks acrobot|glider --update "
+            "benchmarks/results/rl_baselines.json`, with each run's settings as given in the "
+            "[experiment log](experiments/rl-baselines.md)."]
     return "\n".join(out)
 
 
@@ -454,7 +462,7 @@ def results_page() -> str:
         "Every number on this page is read from a committed file under `benchmarks/results/` by "
         "`scripts/make_results.py`; each section names the command that reproduces it. Success is the task's own "
         "rule (the acrobot within 0.05 of upright; the glider inside the perch box) on starts no method trained on. "
-        "Timings come from 2-core machines and are medians over every closed-loop step."
+        "Timings come from 2-core machines: the median and 95th percentile of the time per closed-loop step."
     )
     return "\n\n".join([intro, *sections]) + "\n"
 
