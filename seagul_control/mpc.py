@@ -25,7 +25,7 @@ architecture (:meth:`LimitedLookaheadMPC.set_value_function`) never rebuilds a s
 never negative) in each of them.
 
 The default is the task's ``profile.mpc_trust_region``: ``"none"`` for the acrobot and the glider, whose shipped
-networks are selected and measured unguarded (docs/experiments/closed-loop.md: 98.75 % of the acrobot grid, 91.7 % of
+networks are selected and measured unguarded (docs/experiments/closed-loop.md: 99.25 % of the acrobot grid, 91.7 % of
 the glider's), ``"lqr"`` for a new task.
 
 * ``"lqr"``: ``Vhat + l_f``, i.e. the task's quadratic terminal cost (acrobot: the DARE matrix) as a
@@ -49,8 +49,10 @@ transcription's own linearisation) *is* the value to second order (measured on t
 would settle next to the goal instead of on it (docs/experiments/closed-loop.md). Away from the goal (``l_f >> c``) the
 network is untouched. The blend is applied to the guarded learned cost, before the end-of-episode switch.
 
-**Speed.** The default solver is CasADi's ``fatrop`` (the transcription orders variables and constraints stage by
-stage); with ``jit=True`` (default) the NLP functions are compiled to C once and the object file is cached on disk
+**Speed.** The default solver is the condensed one (``"shooting"``, :mod:`seagul_control.shooting`) for a short
+fixed-step lookahead with input bounds only (the acrobot), else CasADi's ``fatrop`` (the transcription orders
+variables and constraints stage by stage); with ``jit=True`` (default) the NLP functions are compiled to C once
+and the object file is cached on disk
 (``$SEAGUL_CACHE_DIR`` or ``~/.cache/seagul/casadi``, keyed by a hash of the generated source and flags), so a new
 process pays only code generation and linking. Without a C compiler the same solver runs interpreted (slower).
 A value function that offers a *matrix* form (``casadi_function(form="matrix")``: an MX graph of dense
@@ -626,7 +628,8 @@ class LimitedLookaheadMPC(_MPCBase):
             warm start stays in its basin): ``"rise"`` (default with ``solver="shooting"``) at a cold start and
             whenever the warm-started plan costs more than the last step's plan (the warm basin has worsened),
             ``"always"`` every step, ``"never"`` (the only choice, and default, of the other solvers). Measured on
-            the acrobot's shipped network (docs/experiments/mpc.md): grid success 94.5 % -> 98.5 % with ``"rise"``
+            a ``closed-loop+select`` acrobot network (``acrobot_closed-loop_select_b2000_seed0.pt``,
+            docs/experiments/mpc.md): grid success 94.5 % -> 98.5 % with ``"rise"``
             (extra starts on ~5 % of steps) or ``"always"`` (~10x the step time).
         multistart_starts: how many extra starts (2: both bounds).
 

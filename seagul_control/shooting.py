@@ -131,7 +131,8 @@ class ShootingSolver:
     Args:
         f: ``(U, p) -> J``.
         fgh: ``(U, p) -> (J, dJ/dU, d2J/dU2)``.
-        lo, hi: bounds of ``U`` (finite).
+        lo: lower bounds of ``U`` (finite).
+        hi: upper bounds of ``U`` (finite).
         options: :data:`SHOOTING_DEFAULTS` entries.
     """
 

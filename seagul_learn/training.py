@@ -163,7 +163,8 @@ class TrainConfig:
     cl_warmup_rounds: int = 1
     """Closed-loop: first rounds collect with the ``"lqr"``-guarded MPC (teachable queries)."""
     cl_selection: str = "farthest"
-    """Closed-loop: which queries to solve: ``"farthest"`` from the data, ``"lowest"`` under-estimates, ``"random"``."""
+    """Closed-loop: which queries to solve: ``"farthest"`` from the data, ``"spread"`` (largest disagreement of an
+    ensemble's members), ``"lowest"`` under-estimates, ``"random"``."""
     cl_tail_stride: int = 5
     """Closed-loop: only queries whose tail has a multiple of this many intervals (acrobot: 5 = every 0.5 s, so 9
     tail solvers are built, ~12 s of compilation each on first use, instead of 45)."""
