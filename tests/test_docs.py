@@ -94,8 +94,9 @@ NARRATION = re.compile(
 
 
 def test_narration_pattern_finds_what_it_must():
-    for text in ("the twelfth session's recipe", "sessions 15-17", "issue 12", "Issue #10", "this session",
-                 "the fifteenth to seventeenth sessions"):
+    session, issue = "session", "issue"  # kept apart: this file must not itself read as narration
+    for text in (f"the twelfth {session}'s recipe", f"{session}s 15-17", f"{issue} 12", f"{issue.title()} #10", f"this {session}",
+                 f"the fifteenth to seventeenth {session}s"):
         assert NARRATION.search(text), text
     for text in ("10 closed-loop rounds", "the first round", "a Ray session", "first use", "session_id"):
         assert not NARRATION.search(text), text
@@ -105,8 +106,6 @@ def test_nothing_in_the_repository_narrates_its_development():
     hits = []
     for path in text_files():
         rel = path.relative_to(ROOT)
-        if path == Path(__file__).resolve():
-            continue  # this file holds the pattern's own examples
         if NARRATION.search(str(rel)):
             hits.append(f"file name: {rel}")
         for line_no, line in enumerate(path.read_text(errors="replace").splitlines(), 1):
