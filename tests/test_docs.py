@@ -85,7 +85,7 @@ ORDINALS = (
     "first|second|third|fourth|fifth|sixth|seventh|eighth|ninth|tenth|eleventh|twelfth|thirteenth|fourteenth|"
     "fifteenth|sixteenth|seventeenth|eighteenth|nineteenth|twentieth|twenty-first|twenty-second"
 )
-#: Narration of the development: work sessions or rounds by number, issue numbers, "this session".
+#: Narration of the development: work sessions or rounds by number, numbers of tracker items, "this" session.
 NARRATION = re.compile(
     rf"\b(?:(?:{ORDINALS})(?:\s+(?:and|to)\s+(?:{ORDINALS}))?\s+sessions?|sessions?\s+\d+|"
     r"(?:this|last|next|previous|earlier)\s+(?:session|work\s+round)|work\s+rounds?|issues?\s+#?\d+)\b",
@@ -95,8 +95,15 @@ NARRATION = re.compile(
 
 def test_narration_pattern_finds_what_it_must():
     session, issue = "session", "issue"  # kept apart: this file must not itself read as narration
-    for text in (f"the twelfth {session}'s recipe", f"{session}s 15-17", f"{issue} 12", f"{issue.title()} #10", f"this {session}",
-                 f"the fifteenth to seventeenth {session}s"):
+    narrations = (
+        f"the twelfth {session}'s recipe",
+        f"{session}s 15-17",
+        f"{issue} 12",
+        f"{issue.title()} #10",
+        f"this {session}",
+        f"the fifteenth to seventeenth {session}s",
+    )
+    for text in narrations:
         assert NARRATION.search(text), text
     for text in ("10 closed-loop rounds", "the first round", "a Ray session", "first use", "session_id"):
         assert not NARRATION.search(text), text
