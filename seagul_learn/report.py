@@ -379,7 +379,7 @@ def _inline_markdown(text: str) -> str:
     """The little inline Markdown the report uses (code, bold) as HTML."""
     text = html.escape(text)
     text = re.sub(r"`([^`]+)`", r"<code>\1</code>", text)
-    return re.sub(r"\*\*([^*]+)\*\*", r"<b>\1</b>", text)
+    return re.sub(r"\*\*(.+?)\*\*", r"<b>\1</b>", text)  # bold may hold a lone * (``x*``, the goal)
 
 
 _IMAGE_TYPES = {".png": "image/png", ".gif": "image/gif", ".jpg": "image/jpeg", ".jpeg": "image/jpeg"}

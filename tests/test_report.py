@@ -110,7 +110,11 @@ def test_write_report_embeds_figures_and_tables(tmp_path: Path):
     fig.savefig(tmp_path / "curve.png")
     plt.close(fig)
     sections = [
-        Section("Results", ["Adversarial beats **uniform** on `mse_initial`."], [Table(["a", "b"], [[1, 0.123456]])]),
+        Section(
+            "Results",
+            ["Adversarial beats **uniform** on `mse_initial`.", "**Success (||x - x*|| < 0.05) from 99%** of starts."],
+            [Table(["a", "b"], [[1, 0.123456]])],
+        ),
         Section("Figures", figures=[("curve.png", "A curve"), ("missing.png", "Not there")]),
     ]
     md = write_report(tmp_path, "Test report", sections)
@@ -122,6 +126,7 @@ def test_write_report_embeds_figures_and_tables(tmp_path: Path):
     assert "data:image/png;base64," in page  # the existing figure is embedded
     assert "src='missing.png'" in page  # a missing one stays a link instead of failing
     assert "<b>uniform</b>" in page and "<code>mse_initial</code>" in page
+    assert "<b>Success (||x - x*|| &lt; 0.05) from 99%</b>" in page  # bold around the goal's lone *
     assert not list(tmp_path.glob("*.tmp"))
 
 
