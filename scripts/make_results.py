@@ -263,8 +263,18 @@ def readme_block() -> str:
         "Sources: `benchmarks/results/controllers_acrobot.json` and `controllers_glider.json` "
         "([all results, with the commands](docs/results.md)). The RL rows use raw-angle observations and the "
         "task's cost as reward: they are not tuned the way RL practitioners would set them up, so they are "
-        "a lower bound on what RL reaches.",
+        "a lower bound on what RL reaches." + _loaded_note(acro, glider),
     ])
+
+
+def _loaded_note(*tables: Mapping[str, Any]) -> str:
+    """A sentence naming the tables whose own timings ran on a loaded machine (load above 1.5 on 2 cores)."""
+    loaded = [f"{t['task']} ({t['machine']['load_avg_1m']:.1f})" for t in tables
+              if (t.get("machine") or {}).get("load_avg_1m", 0.0) > 1.5]
+    if not loaded:
+        return ""
+    return (f" The controllers benchmark ran at a load of {', '.join(loaded)} on 2 cores, which inflates the step "
+            "times it measured itself (each row's source: the results page).")
 
 
 def _starts(data: Mapping[str, Any]) -> str:
