@@ -269,12 +269,12 @@ def readme_block() -> str:
 
 def _loaded_note(*tables: Mapping[str, Any]) -> str:
     """A sentence naming the tables whose own timings ran on a loaded machine (load above 1.5 on 2 cores)."""
-    loaded = [f"{t['task']} ({t['machine']['load_avg_1m']:.1f})" for t in tables
+    loaded = [f"the {t['task']}'s at a load of {t['machine']['load_avg_1m']:.1f}" for t in tables
               if (t.get("machine") or {}).get("load_avg_1m", 0.0) > 1.5]
     if not loaded:
         return ""
-    return (f" The controllers benchmark ran at a load of {', '.join(loaded)} on 2 cores, which inflates the step "
-            "times it measured itself (each row's source: the results page).")
+    return (f" Of the controllers benchmarks, {' and '.join(loaded)} on 2 cores ran on a loaded machine, which "
+            "inflates the step times it measured itself (each row's source: the results page).")
 
 
 def _starts(data: Mapping[str, Any]) -> str:
