@@ -211,19 +211,9 @@ def machine_line(m: Mapping[str, Any] | None) -> str:
 
 
 # ----------------------------------------------------------------------------------------------------- controllers
-def _controller_label(method: str, task: str) -> str:
-    """A short row name for the front page: the shipped learned MPC is marked, the paper's samplers named."""
-    if method.startswith("learned") and "shipped" not in method:
-        inner = method[method.find("(") + 1 : method.rfind(")")] if "(" in method else ""
-        name = inner.split(",")[0].strip()
-        if name.startswith("closed-loop"):
-            return f"**{method.split(' (')[0]}, shipped** ({inner})"
-        return f"{method.split(' (')[0]}, paper sampler {name} ({inner.split(',', 1)[1].strip()})"
-    return method
-
-
 def _short_name(method: str) -> str:
-    """``learned 5-step MPC (uniform, 5 seeds)`` -> ``5-step MPC, uniform sampler``; other rows keep their name."""
+    """``learned 5-step MPC (uniform, 5 seeds)`` -> ``learned 5-step MPC, paper sampler uniform``; the closed-loop
+    recipe's (or the shipped network's) row -> ``learned 5-step MPC, shipped``; other rows keep their name."""
     if not method.startswith("learned") or "(" not in method:
         return method.split(" (")[0]
     inner = method[method.find("(") + 1 : method.rfind(")")].split(",")[0].strip()
@@ -231,11 +221,24 @@ def _short_name(method: str) -> str:
     return f"{head}, shipped" if inner.startswith(("closed-loop", "shipped")) else f"{head}, paper sampler {inner}"
 
 
+def _controller_label(method: str) -> str:
+    """A table row's name: :func:`_short_name`, the shipped MPC in bold, with the rest of the row's parenthesis
+    (the recipe and the seeds)."""
+    short = _short_name(method)
+    if short == method.split(" (")[0] or "(" not in method:
+        return method
+    details = [d.strip() for d in method[method.find("(") + 1 : method.rfind(")")].split(",")]
+    if short.endswith(", shipped"):
+        details = [d for d in details if d != "shipped network"]
+        return f"**{short}**" + (f" ({', '.join(details)})" if details else "")
+    return f"{short} ({', '.join(details[1:])})"
+
+
 def controller_rows(task: str, *, brief: bool) -> list[list[str]]:
     data = load(f"controllers_{task}.json")
     rows = []
     for r in data["rows"]:
-        label = _controller_label(r["method"], task)
+        label = _controller_label(r["method"])
         cells = [label, count(r.get("nlp_solves")), count(r.get("env_steps")), pct(r["grid_success"]),
                  pct(r["heldout_success"]), f"{ms(r['median_ms'])} / {ms(r['p95_ms'])}"]
         if not brief:
