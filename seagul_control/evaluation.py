@@ -53,7 +53,7 @@ __all__ = [
     "run_policy_episode",
     "start_grid",
 ]
-POLICY_KINDS = ("mpc", "full", "lqr", "sb3")
+POLICY_KINDS = ("mpc", "full", "lqr", "sb3", "do-mpc")
 
 
 @dataclass(frozen=True)
@@ -61,7 +61,7 @@ class PolicySpec:
     """A policy to evaluate, by description (built in the worker)."""
 
     kind: str
-    """``"mpc"``, ``"full"``, ``"lqr"`` or ``"sb3"``."""
+    """``"mpc"``, ``"full"``, ``"lqr"``, ``"sb3"`` or ``"do-mpc"`` (the peer MPC tool, ``seagul[anchors]``)."""
     label: str = ""
     """Name in tables and figures (default: the kind)."""
     path: str | None = None
@@ -184,22 +184,34 @@ def heldout_starts(task: Task | str, n: int = 100) -> np.ndarray:
 
 # ------------------------------------------------------------------------------------------------ policies
 class SB3Policy:
-    """A saved stable-baselines3 model behind the predictor protocol, normalising observations if needed."""
+    """A saved stable-baselines3 model behind the predictor protocol on the raw env.
 
-    def __init__(self, task: Task, path: str, algo: str = "PPO", vecnormalize: str | None = None) -> None:
+    Beside the model it picks up ``vecnormalize.pkl`` (observation statistics) and ``view.json`` (the learner's
+    view: angle features, scaled time to go, actions in ``[-1, 1]``; ``seagul_envs.wrappers.LearnerView``), so a
+    model trained on the learner's view acts on the env's own observations and returns physical actions.
+    """
+
+    def __init__(
+        self, task: Task, path: str, algo: str = "PPO", vecnormalize: str | None = None, view: str | None = None
+    ) -> None:
         import stable_baselines3
         from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
         import seagul_envs  # noqa: F401  (registers the envs)
+        from seagul_envs.wrappers import LearnerView, learner_env
 
         cls = getattr(stable_baselines3, algo, None)
         if cls is None:
             raise ValueError(f"unknown stable-baselines3 algorithm {algo!r}")
         self.model = cls.load(path, device="cpu")
-        stats = vecnormalize or _vecnormalize_beside(path)
+        view_file = view or _beside(path, "view.json")
+        self.view: LearnerView | None = LearnerView.load(view_file) if view_file is not None else None
+        stats = vecnormalize or _beside(path, "vecnormalize.pkl")
         self.normalizer: Any = None
         if stats is not None:
-            venv = DummyVecEnv([lambda: episode_env(task)])
+            view_ = self.view
+            # The statistics were kept on the learner's observations: load them over an env that makes those.
+            venv = DummyVecEnv([lambda: episode_env(task) if view_ is None else learner_env(episode_env(task), view_)])
             self.normalizer = VecNormalize.load(stats, venv)
             self.normalizer.training = False
             self.normalizer.norm_reward = False
@@ -208,14 +220,17 @@ class SB3Policy:
         self, observation: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True
     ) -> tuple[np.ndarray, Any]:
         obs = np.asarray(observation, dtype=np.float32)
+        if self.view is not None:
+            obs = self.view.observe(obs)
         if self.normalizer is not None:
             obs = self.normalizer.normalize_obs(obs)
-        return self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
+        action, state = self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
+        return (self.view.action(action) if self.view is not None else action), state
 
 
-def _vecnormalize_beside(path: str) -> str | None:
-    """``vecnormalize.pkl`` next to the model file, if any."""
-    candidate = Path(path).with_name("vecnormalize.pkl")
+def _beside(path: str, name: str) -> str | None:
+    """The file ``name`` next to the model file, if any."""
+    candidate = Path(path).with_name(name)
     return str(candidate) if candidate.is_file() else None
 
 
@@ -275,6 +290,10 @@ def _build(task: Task, spec: PolicySpec) -> Any:
             value_function = ValueNetwork.load(spec.path)
         horizon = int(options.pop("horizon", default_horizon(task)))
         policy = LimitedLookaheadMPC(task, value_function, horizon, **options)
+    elif spec.kind == "do-mpc":
+        from seagul_control.do_mpc_policy import DoMPCPolicy
+
+        policy = DoMPCPolicy(task, int(options.pop("horizon", default_horizon(task))), **options)
     else:
         policy = SB3Policy(task, str(spec.path), **options)
     return policy
