@@ -68,6 +68,10 @@ per step (the scalar JIT: 6.3 ms at load ~1, minutes to compile), 3-member ensem
 step, then to the LQR reference (:class:`~seagul_control.lqr.LQRPolicy`), then to a zero (clipped) input, and
 records status, iterations, solve time and the source of each action in :attr:`last_info` / :attr:`stats`.
 Warm starts are kept per env index (the previous solution shifted by one step) and dropped on ``episode_start``.
+A cold start (no plan) of a lifted fixed-step problem descends from both the zero-input rollout and the straight
+line to the goal and keeps the lower converged plan (``cold_guess="best"``, the default with fixed steps): over a
+long horizon the rollout of an unstable system falls far from the goal and leads the solver to a poor local
+minimum.
 NaN observations, wrong shapes and a horizon < 1 raise ValueErrors naming the problem.
 """
 
@@ -205,7 +209,8 @@ class _Problem:
         return trans.solve(x, tau, theta, guess=guess, lam_g=lam_g, lam_x=lam_x, model_params=phys, **extra)
 
     def cold_guess(self, x: np.ndarray, tau: float, dt: float, kind: str) -> np.ndarray:
-        """A first guess: a zero-input rollout (``"rollout"``) or the transcription's straight line (``"line"``)."""
+        """A first guess: a zero-input rollout (``"rollout"``, also the first guess of ``"best"``) or the
+        transcription's straight line (``"line"``)."""
         trans = self.trans
         n = trans.horizon
         if trans.free_time:
@@ -226,6 +231,14 @@ class _Problem:
             nxt = np.asarray(step(states[k], u, steps[k])).ravel()
             states[k + 1] = nxt if np.all(np.isfinite(nxt)) else states[k]
         return trans.pack_guess(states, np.zeros((n, trans.task.nu)), steps if trans.free_time else None)
+
+    def cold_alternatives(self, x: np.ndarray, tau: float, dt: float, kind: str) -> list[np.ndarray]:
+        """The further first guesses a cold start of kind ``kind`` also descends from: the straight line after the
+        rollout for ``"best"`` on a lifted fixed-step problem, else none (the condensed solver reads only the
+        guess's inputs, zero in both, and has its own extra starts; free-time problems keep their one guess)."""
+        if kind != "best" or self.trans.condensed or self.trans.free_time:
+            return []
+        return [self.cold_guess(x, tau, dt, "line")]
 
     def _line_with_steps(self, x: np.ndarray, steps: np.ndarray) -> np.ndarray:
         s = np.linspace(0.0, 1.0, self.trans.horizon + 1)[:, None]
@@ -297,6 +310,20 @@ def _shift_guess(
     return primal, lam_g, lam_x
 
 
+def _converged(sol: TranscriptionSolution) -> bool:
+    return bool(sol.success and np.all(np.isfinite(sol.controls[0])) and np.isfinite(sol.objective))
+
+
+def _lower(first: TranscriptionSolution, other: TranscriptionSolution) -> TranscriptionSolution:
+    """The lower converged of two solves of one problem (``first`` on a tie or when neither converged), with the
+    solve times and iterations of both."""
+    better = _converged(other) and (not _converged(first) or other.objective < first.objective)
+    kept, dropped = (other, first) if better else (first, other)
+    kept.solve_time += dropped.solve_time
+    kept.iterations += dropped.iterations
+    return kept
+
+
 # --------------------------------------------------------------------------------------------- base class
 class _MPCBase:
     """Shared predictor machinery: observation checks, warm starts per env, fallbacks and step statistics."""
@@ -308,8 +335,8 @@ class _MPCBase:
         self.dt = float(task.control_period if dt is None else dt)
         if not (np.isfinite(self.dt) and self.dt > 0):
             raise ValueError(f"{self.name}: dt must be a positive number of seconds, got {dt!r}")
-        if cold_guess not in ("rollout", "line"):
-            raise ValueError(f"{self.name}: cold_guess must be 'rollout' or 'line', got {cold_guess!r}")
+        if cold_guess not in ("rollout", "line", "best"):
+            raise ValueError(f"{self.name}: cold_guess must be 'rollout', 'line' or 'best', got {cold_guess!r}")
         self.warm_start = bool(warm_start)
         self.cold_guess = cold_guess
         self._plans: dict[int, _Plan] = {}
@@ -373,11 +400,13 @@ class _MPCBase:
         problem, theta = self._select(tau)
         plan = self._plans.get(env_index) if self.warm_start else None
         lam_g = lam_x = None
+        alternatives: list[np.ndarray] = []
         if plan is not None:
             plan.age += 1
             guess, lam_g, lam_x = _shift_guess(plan, problem, x, self.dt, tau)
         else:
             guess = problem.cold_guess(x, tau, self.dt, self.cold_guess)
+            alternatives = problem.cold_alternatives(x, tau, self.dt, self.cold_guess)
         mode = self.multistart if problem.trans.condensed else "never"
         # "rise": a fresh plan of the same problem to compare with, else (a cold start, a phase switch, a failed
         # last step) the extra starts at once.
@@ -385,6 +414,11 @@ class _MPCBase:
         extra = self.multistart_starts if mode == "always" or (mode == "rise" and not fresh) else 0
         try:
             sol = problem.solve(x, tau, theta, self.dt, guess, lam_g, lam_x, self._robot, starts=extra)
+            for alternative in alternatives:
+                # A cold start also descends from the other first guesses; the lowest converged plan is kept (the
+                # first guess wins ties, and a guess whose solve raises is skipped).
+                with contextlib.suppress(Exception):
+                    sol = _lower(sol, problem.solve(x, tau, theta, self.dt, alternative, None, None, self._robot))
             ok = sol.success and bool(np.all(np.isfinite(sol.controls[0])))
             if ok and mode == "rise" and not extra and plan is not None:
                 previous = plan.objective
@@ -610,7 +644,12 @@ class LimitedLookaheadMPC(_MPCBase):
             ``"shrink"`` (``round(tau_now / dt)`` steps ending exactly at the episode end, terminal box and
             ``l_f``); default ``"shrink"`` for tasks with a terminal box (glider), ``"switch"`` otherwise.
         warm_start: warm-start each env from its previous solution (shifted).
-        cold_guess: first guess without a warm start: ``"rollout"`` (zero input) or ``"line"`` (to the goal).
+        cold_guess: first guess without a warm start: ``"rollout"`` (zero input), ``"line"`` (to the goal) or
+            ``"best"`` (a lifted fixed-step problem descends from both and keeps the lower converged plan; the
+            condensed solver and free-time problems take the rollout alone). None (default): ``"best"`` with fixed
+            steps, ``"rollout"`` with free steps. At long horizons the rollout alone is a poor guess for an unstable
+            system: 20 zero-input steps of the acrobot are a 2 s fall, from which fatrop converged to a swing-around
+            plan (objective 33-45 where the 10-step plan costs 0.01-5.6) or failed (docs/method/mpc.md).
         final_solver: solver of the final phase (default: ``solver``; IPOPT with ``final_soft_weight``).
         final_soft_weight: the final phase imposes the terminal box and path bounds as the exact L1
             penalty of this weight (IPOPT), so it returns the plan that ends closest to the box where the box is out
@@ -665,7 +704,7 @@ class LimitedLookaheadMPC(_MPCBase):
         steps: str = "fixed",
         end_phase: str | None = None,
         warm_start: bool = True,
-        cold_guess: str = "rollout",
+        cold_guess: str | None = None,
         final_solver: SolverName | None = None,
         final_soft_weight: float | None = None,
         model_params: bool = False,
@@ -691,6 +730,8 @@ class LimitedLookaheadMPC(_MPCBase):
             raise ValueError(f"{self.name}: trust_region must be 'box', 'lqr' or 'none', got {trust_region!r}")
         if not (np.isfinite(trust_weight) and trust_weight >= 0):
             raise ValueError(f"{self.name}: trust_weight must be a finite number >= 0, got {trust_weight!r}")
+        if cold_guess is None:
+            cold_guess = "best" if steps == "fixed" else "rollout"
         super().__init__(task, dt, warm_start, cold_guess)
         self.model_params = bool(model_params)
         self._estimator_options: dict[str, Any] | None = None
