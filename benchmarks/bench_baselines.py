@@ -271,6 +271,7 @@ def measure(task: Any, row: Row, grid: np.ndarray, held: np.ndarray, lat: np.nda
         "solves": row.solves,
         "model": row.model,
         "fallback_steps": int(sum(e["fallbacks"] for e in grid_eps)),
+        "crash_rate": float(np.mean([e["terminated"] for e in grid_eps])),
         "tolerance_reached": [round(v, 5) if np.isfinite(v) else None for v in reached],
         **row.extra,
     }
