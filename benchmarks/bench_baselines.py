@@ -41,7 +41,7 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -86,39 +86,21 @@ class Row:
 
 
 # ------------------------------------------------------------------------------------------------ tolerances
-def scaled_rule(rule: SuccessRule, factor: float) -> SuccessRule:
-    """``rule`` with every tolerance times ``factor`` (the bounds' condition unchanged)."""
-    return replace(
-        rule,
-        distance=None if rule.distance is None else rule.distance * factor,
-        per_coordinate=tuple((i, op, tol * factor) for i, op, tol in rule.per_coordinate),
-    )
-
-
 def tolerance_reached(task: Any, final_state: Any, terminated: bool) -> float:
     """The smallest ``tol`` at which the episode meets the task's rule scaled by ``tol / 0.05`` (module docstring):
-    ``0.05 * max(|e_i| / tol_i)`` over the rule's conditions; infinite for an episode the rule fails outright (a
-    crash under ``fail_on_termination``)."""
+    ``0.05 * SuccessRule.scale_needed``; infinite for an episode the rule fails outright (a glider crash)."""
     rule = task.profile.success
     if not isinstance(rule, SuccessRule):
         raise ValueError(f"{task.name}: success_at needs a SuccessRule, got {type(rule).__name__}")
-    if rule.fail_on_termination and terminated:
-        return float("inf")
-    err = np.asarray(final_state, dtype=float) - task.goal
-    ratios = []
-    if rule.distance is not None:
-        sel = err if rule.coords is None else err[list(rule.coords)]
-        ratios.append(float(np.linalg.norm(sel)) / rule.distance)
-    ratios += [abs(float(err[i])) / tol for i, _, tol in rule.per_coordinate]
-    return REFERENCE_TOL * max(ratios) if ratios else 0.0
+    return REFERENCE_TOL * rule.scale_needed(task, final_state, terminated)
 
 
 def success_at(task: Any, episodes: list[dict[str, Any]]) -> dict[str, float]:
-    """Success rate at each of :data:`TOLERANCES`, by the task's rule scaled (:func:`scaled_rule`)."""
+    """Success rate at each of :data:`TOLERANCES`, by the task's rule scaled (``SuccessRule.scaled``)."""
     rule = task.profile.success
     out = {}
     for tol in TOLERANCES:
-        scaled = scaled_rule(rule, float(tol) / REFERENCE_TOL)
+        scaled = rule.scaled(float(tol) / REFERENCE_TOL)
         out[tol] = float(np.mean([scaled(task, e["final_state"], e["terminated"]) for e in episodes]))
     return out
 

@@ -7,13 +7,14 @@ Run::
     .venv/bin/python examples/train_sb3.py --algo SAC --test      # seconds, for CI
 
 The config (:class:`seagul_learn.baselines.SB3Config`) is declared once and every field is a ``--flag`` (``--help``
-lists them with their docstrings). Hyperparameters start from rl-baselines3-zoo's tuned entries for the closest
-tasks (PPO: ``Pendulum-v1``; SAC: ``InvertedDoublePendulumBulletEnv-v0``); the module docstring of
-``seagul_learn.baselines`` states which and what was changed, and why. The run directory gets ``model.zip``,
-``vecnormalize.pkl`` (observation statistics) and ``curve.json`` (grid success and return against environment
-steps). Then evaluate it next to the MPC (the statistics beside the model are picked up automatically)::
+lists them with their docstrings). The settings are the env id's tuned entry in ``seagul_learn/hyperparams/`` (the
+learner's view: cos/sin angles, scaled time to go, actions in [-1, 1], a bounded success-aware reward; rl-zoo
+sizes); ``--algo-overrides '{"ent_coef": 0.01}'`` and ``--view-overrides`` change them. The run directory gets
+``model.zip``, ``vecnormalize.pkl``, ``view.json`` and, in ``best/``, the checkpoint selected on validation starts,
+with ``curve.json`` (validation success against environment steps). Then evaluate it next to the MPC (the statistics
+and the view beside the model are picked up automatically)::
 
-    seagul evaluate --task acrobot --sb3 runs/sac_SeagulAcrobot-v0/model.zip --sb3-algo SAC --lqr --out <dir>
+    seagul evaluate --task acrobot --sb3 runs/sac_SeagulAcrobot-v0/best/model.zip --sb3-algo SAC --lqr --out <dir>
 """
 
 from __future__ import annotations
@@ -31,7 +32,8 @@ def main() -> None:
         config,
         out,
         on_point=lambda p: print(
-            f"  {p['env_steps']:>9} steps  grid success {p['success_rate']:6.1%}  return {p['mean_return']:.4g}",
+            f"  {p['env_steps']:>9} steps  validation success {p['success_rate']:6.1%}  "
+            f"median final distance {p['median_final_distance']:.3g}",
             flush=True,
         ),
     )
@@ -40,7 +42,7 @@ def main() -> None:
 
     task = task_of_env(config.env_id)
     policy = SB3Policy(task, summary["model"], algo=config.algo)
-    held = episode_stats(task, policy, heldout_starts(task, 10 if config.total_timesteps < 10_000 else 100))
+    held = episode_stats(task, policy, heldout_starts(task, 10 if 0 < config.total_timesteps < 10_000 else 100))
     print(json.dumps({"env_steps": summary["env_steps"], "train_wall_s": summary["train_wall_s"], "heldout": held}))
 
 

@@ -162,3 +162,41 @@ def test_zero_input_floor_and_heldout_starts():
     assert away["success_rate"] == 0.0 and away["mean_final_distance"] > 1.0
     radius = task.profile.success.distance
     assert away["mean_miss"] == pytest.approx((away["mean_final_distance"] - radius) / radius)
+
+
+def test_success_rule_scaled_and_the_scale_a_final_state_needs():
+    from seagul_envs import make_task
+
+    acrobot = make_task("acrobot")
+    rule = acrobot.profile.success
+    x = acrobot.goal + np.array([0.06, 0.0, 0.0, 0.0])
+    assert not rule(acrobot, x) and rule.scaled(2.0)(acrobot, x)  # 0.06 misses 0.05, meets 0.1
+    assert rule.scale_needed(acrobot, x) == pytest.approx(0.06 / 0.05)
+    assert rule.scaled(1.0) == rule
+    glider = make_task("glider")
+    perch = glider.profile.success
+    y = glider.goal.copy()
+    y[0] += 0.08  # 8 cm short of the perch, slow enough
+    y[4] += 3.0  # 3 m/s too fast in x: 1.5 speed tolerances
+    assert perch.scale_needed(glider, y) == pytest.approx(max(0.08 / 0.05, 3.0 / 2.0))
+    assert not perch.scaled(1.59)(glider, y) and perch.scaled(1.61)(glider, y)
+    assert perch.scale_needed(glider, glider.goal, terminated=True) == float("inf")  # a crash
+    with pytest.raises(ValueError, match="factor"):
+        rule.scaled(0.0)
+
+
+def test_bench_success_at_rescales_the_rule_and_the_tolerance_reached_is_its_threshold():
+    import sys
+    from pathlib import Path
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from benchmarks.bench_baselines import success_at, tolerance_reached
+    from seagul_envs import make_task
+
+    task = make_task("acrobot")
+    episodes = [
+        {"final_state": list(task.goal + np.array([d, 0, 0, 0])), "terminated": False} for d in (0.01, 0.07, 0.3, 2.0)
+    ]
+    assert success_at(task, episodes) == {"0.05": 0.25, "0.1": 0.5, "0.2": 0.5, "0.5": 0.75}
+    reached = [tolerance_reached(task, e["final_state"], False) for e in episodes]
+    assert reached == pytest.approx([0.01, 0.07, 0.3, 2.0])

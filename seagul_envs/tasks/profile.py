@@ -21,7 +21,7 @@ import itertools
 import math
 import operator
 from collections.abc import Callable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Literal
 
 import numpy as np
@@ -149,6 +149,33 @@ class SuccessRule:
         for i, _, tol in self.per_coordinate:
             total += max(0.0, abs(float(err[i])) - tol) / tol
         return total
+
+    def scaled(self, factor: float) -> SuccessRule:
+        """This rule with every tolerance (the distance and each coordinate's) times ``factor``; the bounds'
+        condition unchanged. ``scaled(2.0)`` of the acrobot's rule is ``||x(T) - x*|| < 0.1``."""
+        factor = float(factor)
+        if not (factor > 0 and np.isfinite(factor)):
+            raise ValueError(f"SuccessRule.scaled: factor must be a finite number > 0, got {factor}")
+        return replace(
+            self,
+            distance=None if self.distance is None else self.distance * factor,
+            per_coordinate=tuple((i, op, tol * factor) for i, op, tol in self.per_coordinate),
+        )
+
+    def scale_needed(self, task: Task, x: Any, terminated: bool = False) -> float:
+        """The factor by which every tolerance must be scaled for the final state ``x`` to meet the rule: the
+        largest ``|e| / tol`` over its conditions (:meth:`scaled` of any larger factor succeeds; at exactly this
+        factor a strict condition still fails). Infinite for an episode the rule fails whatever the tolerance (it
+        left the bounds under ``fail_on_termination``); 0 for a rule without conditions."""
+        if self.fail_on_termination and terminated:
+            return float("inf")
+        err = np.asarray(x, dtype=np.float64) - task.goal
+        ratios = []
+        if self.distance is not None:
+            sel = err if self.coords is None else err[list(self.coords)]
+            ratios.append(float(np.linalg.norm(sel)) / self.distance)
+        ratios += [abs(float(err[i])) / tol for i, _, tol in self.per_coordinate]
+        return max(ratios, default=0.0)
 
     def describe(self, task: Task) -> str:
         """The rule in one line, e.g. ``||x(T) - x*|| < 0.05``."""
