@@ -33,7 +33,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--lqr", action="store_true", help="include the (clipped, TV for the glider) LQR reference")
     parser.add_argument("--full-horizon", action="store_true", help="include the full-horizon MPC (slow)")
     parser.add_argument("--sb3", action="append", default=[], help="a saved SB3 model zip (repeatable)")
-    parser.add_argument("--sb3-algo", default="PPO", help="SB3 algorithm class of the --sb3 models (default PPO)")
+    parser.add_argument(
+        "--sb3-algo",
+        default="PPO",
+        choices=("A2C", "DDPG", "PPO", "SAC", "TD3"),
+        help="SB3 algorithm class of the --sb3 models (default PPO)",
+    )
     parser.add_argument(
         "--horizon", type=positive_int, default=None, help="MPC steps (default: the task's; acrobot 5, glider 10)"
     )
