@@ -97,3 +97,14 @@ def test_missing_extra_names_the_install_command(monkeypatch, acrobot):
     with pytest.raises(ImportError) as err:
         DoMPCPolicy(acrobot, HORIZON)
     assert str(err.value) == INSTALL_HINT == "do-mpc is not installed: pip install 'seagul[anchors]'"
+
+
+def test_the_do_mpc_policy_kind_builds_it_for_an_evaluation(acrobot):
+    from seagul_control.evaluation import POLICY_KINDS, PolicySpec, build_policy, evaluate
+
+    assert "do-mpc" in POLICY_KINDS
+    spec = PolicySpec("do-mpc", "do-mpc-3", None, (("horizon", 3),))
+    policy = build_policy(acrobot, spec)
+    assert isinstance(policy, DoMPCPolicy) and policy.horizon == 3
+    (result,) = evaluate(acrobot, [spec], acrobot.goal[None, :] + 0.01, progress=False)
+    assert result.success and result.steps == 50 and len(result.solve_times) == 50
