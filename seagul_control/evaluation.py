@@ -38,11 +38,11 @@ from seagul_envs.tasks.glider import PERCH_POSITION_TOL, PERCH_SPEED_TOL
 
 __all__ = [
     "ACROBOT_SUCCESS_DISTANCE",
+    "HELDOUT_SEED",
     "PERCH_POSITION_TOL",
     "PERCH_SPEED_TOL",
     "POLICY_KINDS",
     "EpisodeResult",
-    "HELDOUT_SEED",
     "PolicySpec",
     "SB3Policy",
     "build_policy",
