@@ -57,6 +57,7 @@ SWEEP: dict[str, dict[str, Any]] = {
     "sharp (step_scale=1, end_scale=2, success_bonus=2)": {
         "view_overrides": {"step_scale": 1.0, "end_scale": 2.0, "success_bonus": 2.0}
     },
+    "ent_coef=0": {"algo_overrides": {"ent_coef": 0.0}},
 }
 ENV_IDS = {"acrobot": "SeagulAcrobot-v0", "glider": "SeagulGlider-v0"}
 SHIP_DIR = ROOT / "benchmarks" / "results" / "models"
