@@ -44,7 +44,7 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -117,28 +117,19 @@ def shipped_block(task_name: str) -> dict[str, Any]:
     return dict(block)
 
 
-def learned_options(block: dict[str, Any], horizon: int) -> tuple[tuple[str, Any], ...]:
-    """The shipped network's deployment options (``bench_controllers.learned_spec``) at ``horizon``."""
-    options: list[tuple[str, Any]] = [("horizon", int(horizon)), ("trust_region", block["trust_region"])]
-    if "goal_blend" in block:
-        options.append(("goal_blend", float(block["goal_blend"])))
-    return tuple(options)
-
-
 def rows_of(task_name: str, horizons: list[int], do_mpc_horizons: list[int], rl: dict[str, Any]) -> list[Row]:
     """Every row of a task (module docstring)."""
-    from benchmarks.bench_controllers import training_env_steps
+    from benchmarks.bench_controllers import learned_spec, training_env_steps
 
     block = shipped_block(task_name)
     collection, selection = training_env_steps(task_name, block)
-    network = str(ROOT / block["network"])
     rows = []
     for n in horizons:
         rows.append(
             Row(
                 f"learned {n}-step MPC",
                 "learned-mpc",
-                PolicySpec("mpc", f"learned-{n}", network, learned_options(block, n)),
+                replace(learned_spec({**block, "horizon": n}), label=f"learned-{n}"),
                 horizon=n,
                 seeds=int(block["seeds"]),
                 env_steps=collection + selection,
@@ -207,25 +198,10 @@ def episodes_of(task: Any, row: Row, starts: np.ndarray, out: Path, workers: int
     return episodes
 
 
-class _Timed:
-    """A predictor that records the wall time of each ``predict`` of the one it wraps."""
-
-    def __init__(self, policy: Any) -> None:
-        self.policy = policy
-        self.times: list[float] = []
-
-    def predict(self, *args: Any, **kwargs: Any) -> Any:
-        t = time.perf_counter()
-        out = self.policy.predict(*args, **kwargs)
-        self.times.append(time.perf_counter() - t)
-        return out
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.policy, name)
-
-
 def step_times(task: Any, spec: PolicySpec, starts: np.ndarray) -> dict[str, float]:
     """Median and p95 (ms) of the controller's computation per step over episodes from ``starts``."""
+    from benchmarks.bench_controllers import _Timed
+
     timed = _Timed(build_policy(task, spec))
     for x0 in starts:
         run_policy_episode(task, timed, x0)

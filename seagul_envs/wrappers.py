@@ -43,6 +43,8 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from seagul_envs.envs.base import BufferedFunction
+
 __all__ = [
     "AngleFeatures",
     "HorizonEndTerminates",
@@ -194,7 +196,8 @@ class LearnerReward(gym.Wrapper):
         self.task = env.unwrapped.task  # type: ignore[attr-defined]
         x = ca.SX.sym("x", self.task.nx)
         u = ca.SX.sym("u", self.task.nu)
-        self._stage_cost = ca.Function("stage_cost", [x, u], [self.task.stage_cost(x, u)])
+        # Evaluated every step: the buffered call on preallocated arrays, as the env's own step does.
+        self._stage_cost = BufferedFunction(ca.Function("stage_cost", [x, u], [self.task.stage_cost(x, u)]))
         self._x = np.zeros(self.task.nx)
         self._tau = 0.0
 
@@ -207,7 +210,10 @@ class LearnerReward(gym.Wrapper):
         u = np.clip(np.asarray(action, dtype=float).reshape(-1), self.task.u_low, self.task.u_high)
         obs, task_reward, terminated, truncated, info = self.env.step(action)
         h = max(0.0, self._tau - float(info["time_to_go"]))
-        cost = float(self._stage_cost(self._x, u))
+        stage = self._stage_cost
+        stage.args[0][:], stage.args[1][:] = self._x, u
+        stage()
+        cost = float(stage.res[0][0])
         cost = cost if math.isfinite(cost) else math.inf
         reward = -(h / self.view.tau_max) * math.tanh(cost / self.view.step_scale)
         info = {**info, "task_reward": float(task_reward)}
