@@ -16,7 +16,8 @@ The shipped model of a task and algorithm is the seed with the best validation p
 miss), copied with its statistics and view to ``benchmarks/results/models/<task>_<algo>/``.
 
 A run directory with a ``curve.json`` of the same config is reused, so an interrupted benchmark resumes at the
-run it was in. Figure: ``rl_curves_<task>.png`` (validation success and median miss of the success rule against
+run it was in; a larger ``--steps`` budget extends the stored runs from their final models
+(:func:`seagul_learn.baselines.extendable_run`) instead of training them again. Figure: ``rl_curves_<task>.png`` (validation success and median miss of the success rule against
 environment steps: median and range over seeds). The last line of stdout is the JSON written to ``--json``::
 
     {"acrobot": {"ppo": {"algo", "env_steps", "seeds", "success_rate", "heldout_success_rate", "per_seed": [...],
@@ -79,12 +80,16 @@ def run_seed(config: SB3Config, out: Path, n_heldout: int = 100) -> dict[str, An
     from seagul_control.evaluation import SB3Policy, heldout_starts, start_grid
     from seagul_learn.baselines import episode_stats, task_of_env
 
+    from seagul_learn.baselines import extendable_run
+
     done = out / "result.json"
     if done.is_file():
         stored = json.loads(done.read_text())
         if stored.get("config") == config.to_dict():
             return stored
-        shutil.rmtree(out)  # another config's run: train this one in its place
+        if extendable_run(config, out) is None:
+            shutil.rmtree(out)  # another config's run: train this one in its place
+        # else: the same run with a smaller budget; train_sb3 continues it from its final model
     summary = train_sb3(config, out, on_point=lambda row: print(f"{out}: {row}", file=sys.stderr, flush=True))
     task = task_of_env(config.env_id)
     policy = SB3Policy(task, summary["model"], algo=config.algo)

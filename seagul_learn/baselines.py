@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import copy
 import json
+import shutil
 import time
 from collections.abc import Callable
 from dataclasses import asdict, dataclass, field, replace
@@ -256,6 +257,11 @@ def train_sb3(
     ``mean_return``); a point that beats the best so far (:func:`_better`) saves the model into ``out/best``.
     ``on_point`` sees each point; ``curve.partial.json`` holds the points so far until the run completes. The
     summary's ``best`` is the selected point and ``model`` the selected model's path.
+
+    **Extending a run.** When ``out`` holds a completed run of the same config with a smaller ``total_timesteps``
+    (:func:`extendable_run`), training continues from its final model and normalisation statistics up to the new
+    budget (the curve, the best point and the training time carry over; the learning rate is constant in the tuned
+    entries, so the extension is the same schedule); otherwise a run already in ``out`` is replaced.
     """
     import torch
     from stable_baselines3.common.callbacks import BaseCallback
@@ -267,12 +273,23 @@ def train_sb3(
     settings = config.resolved()
     view = learner_view(config.env_id, settings["learner_view"])
     venv = training_env(config, view)
-    model = _make_model(config, venv)
+    previous = extendable_run(config, out)
+    model = _make_model(config, venv) if previous is None else _load_model(config, venv, out)
+    if previous is not None:
+        venv = model.get_env()
     normalizer = venv if settings.get("normalize", True) else None
     starts = validation_starts(task, config.n_validation)
     live = LivePolicy(model, view, normalizer)
-    curve: list[dict[str, Any]] = []
-    state: dict[str, Any] = {"train": 0.0, "since": time.perf_counter(), "best": None}
+    curve: list[dict[str, Any]] = [] if previous is None else list(previous["curve"])
+    state: dict[str, Any] = {
+        "train": 0.0 if previous is None else float(previous["train_wall_s"]),
+        "since": time.perf_counter(),
+        "best": None if previous is None else previous["best"],
+    }
+    # New best checkpoints go to best.partial/ and replace best/ only when the run completes, so an interrupted
+    # extension leaves the stored run (curve.json, best/, model.zip) exactly as it was.
+    candidate = out / "best.partial"
+    shutil.rmtree(candidate, ignore_errors=True)
     _write_json(out / "config.json", {"config": config.to_dict(), "resolved": settings})
 
     def point() -> None:
@@ -280,7 +297,7 @@ def train_sb3(
         row: dict[str, Any] = {"env_steps": int(model.num_timesteps), "wall_s": round(state["train"], 1)}
         row.update(episode_stats(task, live, starts))
         if _better(row, state["best"]):
-            save_policy(model, normalizer, view, out / "best")
+            save_policy(model, normalizer, view, candidate)
             state["best"] = row
         curve.append(row)
         _write_json(out / "curve.partial.json", {"config": config.to_dict(), "complete": False, "curve": curve})
@@ -291,7 +308,8 @@ def train_sb3(
     class Curve(BaseCallback):
         def __init__(self) -> None:
             super().__init__()
-            self.next_point = int(settings["eval_every"])
+            every = int(settings["eval_every"])
+            self.next_point = (int(model.num_timesteps) // every + 1) * every  # past the extended run's last point
 
         def _on_step(self) -> bool:
             # The last point is taken after learn() returns: PPO still updates on the rollout that ends there.
@@ -301,9 +319,19 @@ def train_sb3(
             return True
 
     total = int(settings["n_timesteps"])
-    model.learn(total_timesteps=total, callback=Curve(), progress_bar=config.progress)
+    if previous is not None:
+        model.set_random_seed(config.seed + int(model.num_timesteps))  # a fresh, reproducible stream per extension
+    model.learn(
+        total_timesteps=total - int(model.num_timesteps),
+        callback=Curve(),
+        progress_bar=config.progress,
+        reset_num_timesteps=previous is None,
+    )
     point()
     save_policy(model, normalizer, view, out)
+    if candidate.is_dir():
+        shutil.rmtree(out / "best", ignore_errors=True)
+        candidate.rename(out / "best")
     summary = {
         "config": config.to_dict(),
         "resolved": settings,
@@ -314,10 +342,41 @@ def train_sb3(
         "best": state["best"],
         "model": str(out / "best" / "model.zip"),
         "final_model": str(out / "model.zip"),
+        "extended_from": None if previous is None else int(previous["env_steps"]),
     }
     _write_json(out / "curve.json", summary)
     (out / "curve.partial.json").unlink(missing_ok=True)
     return summary
+
+
+def extendable_run(config: SB3Config, out: str | Path) -> dict[str, Any] | None:
+    """The completed run in ``out`` that ``config`` extends (its ``curve.json`` summary), or ``None``.
+
+    A run is extendable when its config equals ``config`` in every field but ``total_timesteps`` and ``progress``,
+    it stopped below ``config.total_timesteps``, and its final ``model.zip`` is there.
+    """
+    out = Path(out)
+    path = out / "curve.json"
+    if not (path.is_file() and (out / "model.zip").is_file()):
+        return None
+    stored = json.loads(path.read_text())
+    mine = {k: v for k, v in config.to_dict().items() if k not in ("total_timesteps", "progress")}
+    theirs = {k: v for k, v in stored.get("config", {}).items() if k not in ("total_timesteps", "progress")}
+    if mine != theirs or int(stored.get("env_steps", 0)) >= int(config.resolved()["n_timesteps"]):
+        return None
+    return dict(stored)
+
+
+def _load_model(config: SB3Config, venv: Any, out: Path) -> Any:
+    """The final model of the run in ``out`` on ``venv`` (its ``VecNormalize`` statistics restored)."""
+    import stable_baselines3
+    from stable_baselines3.common.vec_env import VecNormalize
+
+    if isinstance(venv, VecNormalize):
+        venv = VecNormalize.load(str(out / "vecnormalize.pkl"), venv.venv)
+        venv.training = True
+    cls = getattr(stable_baselines3, config.algo)
+    return cls.load(out / "model.zip", env=venv, device="cpu")
 
 
 def _write_json(path: Path, payload: Any) -> None:

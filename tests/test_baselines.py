@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 
 import gymnasium as gym
 import numpy as np
@@ -16,6 +17,7 @@ from seagul_learn.baselines import (
     ZeroPolicy,
     config_from_args,
     episode_stats,
+    extendable_run,
     learner_view,
     smoke_config,
     task_of_env,
@@ -200,3 +202,20 @@ def test_bench_success_at_rescales_the_rule_and_the_tolerance_reached_is_its_thr
     assert success_at(task, episodes) == {"0.05": 0.25, "0.1": 0.5, "0.2": 0.5, "0.5": 0.75}
     reached = [tolerance_reached(task, e["final_state"], False) for e in episodes]
     assert reached == pytest.approx([0.01, 0.07, 0.3, 2.0])
+
+
+def test_a_larger_budget_extends_a_completed_run_from_its_final_model(tmp_path):
+    config = smoke_config(SB3Config(algo="PPO", seed=5))
+    first = train_sb3(config, tmp_path)
+    assert extendable_run(config, tmp_path) is None  # same budget: nothing to extend
+    longer = replace(config, total_timesteps=2 * config.total_timesteps)
+    assert extendable_run(longer, tmp_path)["env_steps"] == first["env_steps"]
+    assert extendable_run(replace(longer, seed=6), tmp_path) is None  # another run's directory is not extended
+    second = train_sb3(longer, tmp_path)
+    assert second["extended_from"] == first["env_steps"]
+    assert second["env_steps"] >= longer.total_timesteps
+    assert second["curve"][: len(first["curve"])] == first["curve"]  # the stored curve carries over
+    steps = [p["env_steps"] for p in second["curve"]]
+    assert steps == sorted(steps) and len(set(steps)) == len(steps)
+    assert second["train_wall_s"] >= first["train_wall_s"]
+    assert not (tmp_path / "best.partial").exists() and (tmp_path / "best" / "model.zip").is_file()
