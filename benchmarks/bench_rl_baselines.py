@@ -17,8 +17,10 @@ miss), copied with its statistics and view to ``benchmarks/results/models/<task>
 
 A run directory with a ``curve.json`` of the same config is reused, so an interrupted benchmark resumes at the
 run it was in; a larger ``--steps`` budget extends the stored runs from their final models
-(:func:`seagul_learn.baselines.extendable_run`) instead of training them again. Figure: ``rl_curves_<task>.png`` (validation success and median miss of the success rule against
-environment steps: median and range over seeds). The last line of stdout is the JSON written to ``--json``::
+(:func:`seagul_learn.baselines.extendable_run`) instead of training them again.
+
+Figure: ``rl_curves_<task>.png`` (validation success and median miss of the success rule against environment
+steps: median and range over seeds). The last line of stdout is the JSON written to ``--json``::
 
     {"acrobot": {"ppo": {"algo", "env_steps", "seeds", "success_rate", "heldout_success_rate", "per_seed": [...],
                          "curves": [[...], ...], "model", "settings", "train_wall_s"}, "sac": {...}},
@@ -78,9 +80,7 @@ def config_of(task: str, algo: str, seed: int, steps: int, quick: bool) -> SB3Co
 def run_seed(config: SB3Config, out: Path, n_heldout: int = 100) -> dict[str, Any]:
     """Train (or reuse) one run, then evaluate its selected model on the grid and the held-out starts."""
     from seagul_control.evaluation import SB3Policy, heldout_starts, start_grid
-    from seagul_learn.baselines import episode_stats, task_of_env
-
-    from seagul_learn.baselines import extendable_run
+    from seagul_learn.baselines import episode_stats, extendable_run, task_of_env
 
     done = out / "result.json"
     if done.is_file():

@@ -425,4 +425,3 @@ def smoke_config(config: SB3Config) -> SB3Config:
         n_validation=4,
         algo_overrides={**config.algo_overrides, **small},
     )
-
