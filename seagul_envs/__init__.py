@@ -12,8 +12,8 @@ command-line ``--task`` value (a name or ``module:factory``). See docs/tutorials
 
 from __future__ import annotations
 
-from seagul_envs.envs.task_env import TaskEnv, make_env
-from seagul_envs.registration import ENV_IDS, register_envs, register_task, task_env_id, unregister_task
+from seagul_envs.envs.task_env import TaskEnv
+from seagul_envs.registration import ENV_IDS, make_env, register_envs, register_task, task_env_id, unregister_task
 from seagul_envs.tasks import (
     EvaluationGrid,
     SolverDefaults,

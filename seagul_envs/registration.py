@@ -1,5 +1,9 @@
-"""Gymnasium registration: the built-in env ids (idempotent; Gymnasium 1.x has no plugin entry points) and
-:func:`register_task`, which adds a user's task to :func:`~seagul_envs.tasks.make_task` and to ``gym.make``.
+"""The one env registry: the built-in env ids (idempotent; Gymnasium 1.x has no plugin entry points),
+:func:`register_task`, which adds a user's task to :func:`~seagul_envs.tasks.make_task` and to ``gym.make``, and the
+task -> env lookup, :func:`env_class_for` and :func:`make_env` (``seagul_envs.make_env``).
+
+It imports the env classes (:class:`~seagul_envs.envs.task_env.TaskEnv`); no env module imports it, so there is no
+import cycle and every import is at module level.
 
 Every seagul id is registered with ``max_episode_steps`` computed from its task: the longest admissible episode at
 the task's control period, ``ceil(max T0 / control_period)``
@@ -21,8 +25,10 @@ from typing import Any
 
 import cloudpickle
 import gymnasium as gym
+from gymnasium.envs.registration import EnvSpec, load_env_creator
 
-from seagul_envs.envs.base import longest_episode_steps
+from seagul_envs.envs.base import TaskSimulatorEnv, longest_episode_steps
+from seagul_envs.envs.task_env import TaskEnv
 from seagul_envs.tasks import (
     _LOCK,
     BUILTIN_TASKS,
@@ -32,6 +38,8 @@ from seagul_envs.tasks import (
     _set_factory,
     build_task,
     make_task,
+    shared_task,
+    validate_task,
 )
 
 ENV_IDS: dict[str, str] = {
@@ -93,8 +101,6 @@ class TaskEnvCreator:
     factory: Callable[[], Task]
 
     def __call__(self, **kwargs: Any) -> gym.Env:
-        from seagul_envs.envs.task_env import TaskEnv
-
         task = kwargs.pop("task", None)
         if task is None:
             task = _task_for(self.name, self.factory)
@@ -238,3 +244,83 @@ def _same_factory(a: object, b: object) -> bool:
         and "<" not in qa  # lambdas and closures with one qualname may build different tasks
         and getattr(a, "__module__", None) == getattr(b, "__module__", None)
     )
+
+
+# ------------------------------------------------------------------------------------------------ task -> env
+def env_class_for(task: Task) -> type[TaskSimulatorEnv]:
+    """The env class that simulates ``task``: the class registered under ``task.profile.env_id`` when it simulates
+    systems of the task's parameter class (its ``params_class``: a built-in system and its variants, which render
+    and, for the glider, have the elevator stop), else the generic :class:`TaskEnv`. Nothing is looked up by name."""
+    env_id = task.profile.env_id
+    if not env_id or env_id not in gym.registry:
+        return TaskEnv
+    registered = gym.registry[env_id].entry_point
+    entry: Any = load_env_creator(registered) if isinstance(registered, str) else registered
+    params_class = getattr(entry, "params_class", None)
+    if isinstance(entry, type) and issubclass(entry, TaskSimulatorEnv) and params_class is not None:
+        if isinstance(task.params, params_class):
+            return entry
+    return TaskEnv
+
+
+def make_env(task: Task | str, **kwargs: Any) -> gym.Env:
+    """A Gymnasium env for ``task`` (any :class:`Task`, or a task name), made like ``gym.make`` makes the built-ins.
+
+    The result is what ``gym.make`` returns (the env wrapped in Gymnasium's env checker and order enforcing;
+    ``.unwrapped`` is the seagul env, with ``spec`` set so ``env.spec.make()`` makes a copy):
+
+    * a built-in task (``make_task("acrobot")``, or a variant of the same system such as
+      ``make_acrobot_task(AcrobotParams(b1=0))``) gives its built-in env, exactly ``gym.make("SeagulAcrobot-v0")``
+      (``task=`` the variant); ``make_env("glider")`` is ``gym.make("SeagulGlider-v0")``;
+    * the shared task of a name registered with :func:`seagul_envs.register_task` gives ``gym.make`` of its id;
+    * any other task gives a :class:`TaskEnv` (observation = state + time to go, action = the task's input box,
+      reward = ``-h l(x, u)`` per step and ``-l_f`` at the end, ``reset(options={"state", "time_to_go"})``).
+
+    ``kwargs`` are the env's (``dt``, ``render_mode``, ``max_substep``; ``renderer`` for a :class:`TaskEnv`) and
+    ``gym.make``'s own (``max_episode_steps``, ``disable_env_checker``, ...). An unregistered task travels inside the
+    env (and its spec): pickling the env pickles the Task by value, so workers need not know the task's name.
+
+    Unless ``max_episode_steps`` is given, the ``TimeLimit`` is the task's longest admissible episode at the env's
+    ``dt`` (:func:`~seagul_envs.envs.base.longest_episode_steps`): a ``dt`` other than the task's control period,
+    or a variant task with another T0, gets the limit that fits it (a plain ``gym.make(id, dt=...)`` keeps the
+    registered one, counted in default control periods).
+
+    Raises:
+        TypeError: ``task`` is neither a Task nor a name.
+        ValueError: an unknown name, or a malformed Task (see :func:`~seagul_envs.tasks.base.validate_task`).
+    """
+    if isinstance(task, str):
+        task = make_task(task)
+    if not isinstance(task, Task):
+        raise TypeError(f"make_env needs a seagul_envs Task or a task name, got {type(task).__name__}")
+    cls = env_class_for(task)
+    if cls is not TaskEnv:
+        env_id = str(task.profile.env_id)
+        kwargs = _with_time_limit(task, gym.spec(env_id).max_episode_steps, kwargs)
+        return gym.make(env_id, **kwargs) if task is shared_task(task.name) else gym.make(env_id, task=task, **kwargs)
+    validate_task(task)
+    registered_id = TASK_ENV_IDS.get(task.name)
+    if registered_id is not None and task is shared_task(task.name):
+        return gym.make(registered_id, **_with_time_limit(task, gym.spec(registered_id).max_episode_steps, kwargs))
+    # gym.make calls entry_point(**kwargs) with ``task`` among them; Gymnasium's EnvCreator protocol (``**kwargs`` only)
+    # rejects a constructor with a named ``task`` parameter.
+    spec = EnvSpec(
+        id=task_env_id(task.name),
+        entry_point=TaskEnv,  # type: ignore[arg-type]
+        max_episode_steps=_with_time_limit(task, None, kwargs).get("max_episode_steps"),
+        disable_env_checker=False,
+    )
+    return gym.make(spec, task=task, **kwargs)
+
+
+def _with_time_limit(task: Task, registered: int | None, kwargs: dict[str, Any]) -> dict[str, Any]:
+    """``kwargs`` with ``max_episode_steps`` = the task's longest episode at ``kwargs["dt"]`` when that differs from
+    the ``registered`` limit; the caller's own ``max_episode_steps`` wins, and a bad ``dt`` is left to the env's
+    constructor to name."""
+    if "max_episode_steps" in kwargs:
+        return kwargs
+    try:
+        steps = longest_episode_steps(task, kwargs.get("dt"))
+    except ValueError:
+        return kwargs
+    return kwargs if steps == registered else {**kwargs, "max_episode_steps": steps}

@@ -398,7 +398,8 @@ def test_a_renamed_variant_of_a_builtin_system_gets_its_env_by_parameter_class()
     import dataclasses
 
     from seagul_envs.envs.acrobot import AcrobotEnv
-    from seagul_envs.envs.task_env import TaskEnv, env_class_for
+    from seagul_envs.envs.task_env import TaskEnv
+    from seagul_envs.registration import env_class_for
     from seagul_envs.tasks import AcrobotParams, make_acrobot_task
 
     heavy = dataclasses.replace(make_acrobot_task(AcrobotParams(m2=1.5)), name="acrobot_heavy")

@@ -1,16 +1,22 @@
-"""A Gymnasium env for any :class:`~seagul_envs.tasks.base.Task`: :class:`TaskEnv` and :func:`make_env`."""
+"""A Gymnasium env for any :class:`~seagul_envs.tasks.base.Task`: :class:`TaskEnv`.
+
+:func:`~seagul_envs.registration.make_env` (``seagul_envs.make_env``), which picks the env class of a task and makes
+it like ``gym.make``, lives with the env registration in :mod:`seagul_envs.registration`; this module knows no
+registry, so the registry imports it and not the other way round. ``make_env`` and ``env_class_for`` imported from
+here still work, with a ``DeprecationWarning``, until the next release.
+"""
 
 from __future__ import annotations
 
+import importlib
+import warnings
 from collections.abc import Callable
 from typing import Any
 
-import gymnasium as gym
 import numpy as np
-from gymnasium.envs.registration import EnvSpec, load_env_creator
 
-from seagul_envs.envs.base import TaskSimulatorEnv, longest_episode_steps
-from seagul_envs.tasks import Task, make_task, shared_task, validate_task
+from seagul_envs.envs.base import TaskSimulatorEnv
+from seagul_envs.tasks import Task, validate_task
 
 Renderer = Callable[[Task, np.ndarray, np.ndarray, float], np.ndarray]
 """``renderer(task, state, last_action, time_to_go) -> (H, W, 3) uint8 frame``: how a custom task draws itself."""
@@ -140,82 +146,19 @@ class TaskEnv(TaskSimulatorEnv):
         return frame
 
 
-def env_class_for(task: Task) -> type[TaskSimulatorEnv]:
-    """The env class that simulates ``task``: the class registered under ``task.profile.env_id`` when it simulates
-    systems of the task's parameter class (its ``params_class``: a built-in system and its variants, which render
-    and, for the glider, have the elevator stop), else the generic :class:`TaskEnv`. Nothing is looked up by name."""
-    env_id = task.profile.env_id
-    if not env_id or env_id not in gym.registry:
-        return TaskEnv
-    registered = gym.registry[env_id].entry_point
-    entry: Any = load_env_creator(registered) if isinstance(registered, str) else registered
-    params_class = getattr(entry, "params_class", None)
-    if isinstance(entry, type) and issubclass(entry, TaskSimulatorEnv) and params_class is not None:
-        if isinstance(task.params, params_class):
-            return entry
-    return TaskEnv
+_MOVED = ("make_env", "env_class_for")
+"""Functions that moved to :mod:`seagul_envs.registration` (old names kept for one release)."""
 
 
-def make_env(task: Task | str, **kwargs: Any) -> gym.Env:
-    """A Gymnasium env for ``task`` (any :class:`Task`, or a task name), made like ``gym.make`` makes the built-ins.
-
-    The result is what ``gym.make`` returns (the env wrapped in Gymnasium's env checker and order enforcing;
-    ``.unwrapped`` is the seagul env, with ``spec`` set so ``env.spec.make()`` makes a copy):
-
-    * a built-in task (``make_task("acrobot")``, or a variant of the same system such as
-      ``make_acrobot_task(AcrobotParams(b1=0))``) gives its built-in env, exactly ``gym.make("SeagulAcrobot-v0")``
-      (``task=`` the variant); ``make_env("glider")`` is ``gym.make("SeagulGlider-v0")``;
-    * the shared task of a name registered with :func:`seagul_envs.register_task` gives ``gym.make`` of its id;
-    * any other task gives a :class:`TaskEnv` (observation = state + time to go, action = the task's input box,
-      reward = ``-h l(x, u)`` per step and ``-l_f`` at the end, ``reset(options={"state", "time_to_go"})``).
-
-    ``kwargs`` are the env's (``dt``, ``render_mode``, ``max_substep``; ``renderer`` for a :class:`TaskEnv`) and
-    ``gym.make``'s own (``max_episode_steps``, ``disable_env_checker``, ...). An unregistered task travels inside the
-    env (and its spec): pickling the env pickles the Task by value, so workers need not know the task's name.
-
-    Unless ``max_episode_steps`` is given, the ``TimeLimit`` is the task's longest admissible episode at the env's
-    ``dt`` (:func:`~seagul_envs.envs.base.longest_episode_steps`): a ``dt`` other than the task's control period,
-    or a variant task with another T0, gets the limit that fits it (a plain ``gym.make(id, dt=...)`` keeps the
-    registered one, counted in default control periods).
-
-    Raises:
-        TypeError: ``task`` is neither a Task nor a name.
-        ValueError: an unknown name, or a malformed Task (see :func:`~seagul_envs.tasks.base.validate_task`).
-    """
-    if isinstance(task, str):
-        task = make_task(task)
-    if not isinstance(task, Task):
-        raise TypeError(f"make_env needs a seagul_envs Task or a task name, got {type(task).__name__}")
-    cls = env_class_for(task)
-    if cls is not TaskEnv:
-        env_id = str(task.profile.env_id)
-        kwargs = _with_time_limit(task, gym.spec(env_id).max_episode_steps, kwargs)
-        return gym.make(env_id, **kwargs) if task is shared_task(task.name) else gym.make(env_id, task=task, **kwargs)
-    validate_task(task)
-    from seagul_envs.registration import TASK_ENV_IDS, task_env_id
-
-    registered_id = TASK_ENV_IDS.get(task.name)
-    if registered_id is not None and task is shared_task(task.name):
-        return gym.make(registered_id, **_with_time_limit(task, gym.spec(registered_id).max_episode_steps, kwargs))
-    # gym.make calls entry_point(**kwargs) with ``task`` among them; Gymnasium's EnvCreator protocol (``**kwargs`` only)
-    # rejects a constructor with a named ``task`` parameter.
-    spec = EnvSpec(
-        id=task_env_id(task.name),
-        entry_point=TaskEnv,  # type: ignore[arg-type]
-        max_episode_steps=_with_time_limit(task, None, kwargs).get("max_episode_steps"),
-        disable_env_checker=False,
-    )
-    return gym.make(spec, task=task, **kwargs)
-
-
-def _with_time_limit(task: Task, registered: int | None, kwargs: dict[str, Any]) -> dict[str, Any]:
-    """``kwargs`` with ``max_episode_steps`` = the task's longest episode at ``kwargs["dt"]`` when that differs from
-    the ``registered`` limit; the caller's own ``max_episode_steps`` wins, and a bad ``dt`` is left to the env's
-    constructor to name."""
-    if "max_episode_steps" in kwargs:
-        return kwargs
-    try:
-        steps = longest_episode_steps(task, kwargs.get("dt"))
-    except ValueError:
-        return kwargs
-    return kwargs if steps == registered else {**kwargs, "max_episode_steps": steps}
+def __getattr__(name: str) -> Any:
+    """``make_env`` and ``env_class_for``, moved to :mod:`seagul_envs.registration`: imported from there by module
+    path on first use (an import at module level would be the old import cycle), with a deprecation warning."""
+    if name in _MOVED:
+        new = "seagul_envs.make_env" if name == "make_env" else f"seagul_envs.registration.{name}"
+        warnings.warn(
+            f"seagul_envs.envs.task_env.{name} is deprecated and will be removed in the next release; use {new}",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        return getattr(importlib.import_module("seagul_envs.registration"), name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
