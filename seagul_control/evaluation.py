@@ -1,9 +1,18 @@
 """Closed-loop evaluation: run policies from a grid of starts through the Gymnasium envs and return the results.
 
 Policies are described by :class:`PolicySpec` (picklable) and built inside each worker process (solvers are not
-picklable), once per process and reused for every episode there: ``"mpc"`` (a limited-lookahead MPC with a saved
-value network, or the task's own terminal cost without one), ``"full"`` (the full-horizon MPC), ``"lqr"`` and
-``"sb3"`` (a saved stable-baselines3 model, with its ``VecNormalize`` statistics if present).
+picklable), once per process and reused for every episode there. How a kind is built is looked up in a registry of
+policy kinds (:func:`register_policy_kind`): kind -> the builder ``builder(task, spec) -> predictor``, named by its
+module path ``"package.module:function"``. :func:`evaluate` resolves each spec's builder path in the calling process
+and sends the path, not the function, to the workers, which import it by name; so joblib/loky workers (which start
+with fresh registries) build every kind the caller could, a kind registered at run time included.
+
+The control kinds are built here: ``"lqr"``, ``"full"`` (the full-horizon MPC), ``"mpc"`` without a file (a
+limited-lookahead MPC with the task's own terminal cost; :func:`build_lookahead_policy` also takes a given value
+function) and ``"do-mpc"`` (the peer MPC tool, ``seagul[anchors]``). The learned kinds, ``"mpc"`` with a saved value
+network and ``"sb3"`` (a saved stable-baselines3 model), are built by :mod:`seagul_learn.policies`: their registry
+entries name that module by path, so it (and torch) is imported only in a process that builds one, and never by
+importing this module. ``seagul_control`` imports neither torch nor ``seagul_learn``.
 
 Metrics per episode (paper §6): the final distance to the goal ``||x(T) - x*||``, the trajectory cost (minus the
 episode return: running plus terminal cost, paper Fig. 4) and success by the task's rule (``task.profile.success``:
@@ -15,23 +24,35 @@ deterministic, so results do not depend on the number of worker processes.
 
 This module only runs episodes and returns :class:`EpisodeResult` data; it never imports matplotlib. The tables and
 figures made from the results (``summarize``, ``write_outputs``, ``plot_heatmaps``, ``plot_glider_trajectories``)
-live in :mod:`seagul_learn.report`; their old names here still work, with a ``DeprecationWarning``, until the next
-release. ``seagul_control`` never imports torch: the network is loaded through ``seagul_learn`` only when a spec
-names one.
+live in :mod:`seagul_learn.report` and ``SB3Policy`` in :mod:`seagul_learn.policies`; their old names here still
+work, with a ``DeprecationWarning``, until the next release.
+
+Imports are at module level; the only imports by name at run time are the builders of the registry (by design,
+above) and the deprecated names (which live in ``seagul_learn``).
 """
 
 from __future__ import annotations
 
 import importlib
+import threading
 import warnings
-from collections.abc import Iterator, Sequence
+from collections.abc import Callable, Iterator, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
+from cloudpickle import register_pickle_by_value
+from joblib import Parallel, delayed
+from tqdm.auto import tqdm
 
-from seagul_envs.tasks import available_tasks, make_task, resolve_task
+import seagul_envs
+from seagul_control.do_mpc_policy import DoMPCPolicy
+from seagul_control.lqr import LQRPolicy
+from seagul_control.mpc import FullHorizonMPC, LimitedLookaheadMPC
+from seagul_control.value_function import CasadiValueFunction
+from seagul_envs.tasks import BUILTIN_TASKS, available_tasks, file_task_modules, make_task, resolve_task
 from seagul_envs.tasks.acrobot import SUCCESS_DISTANCE as ACROBOT_SUCCESS_DISTANCE
 from seagul_envs.tasks.base import Task
 from seagul_envs.tasks.glider import PERCH_POSITION_TOL, PERCH_SPEED_TOL
@@ -43,19 +64,112 @@ __all__ = [
     "PERCH_SPEED_TOL",
     "POLICY_KINDS",
     "EpisodeResult",
+    "PolicyKind",
     "PolicySpec",
-    "SB3Policy",
     "build_policy",
+    "builder_path",
     "default_horizon",
     "episode_env",
     "evaluate",
     "heldout_starts",
     "is_success",
+    "policy_kinds",
+    "register_policy_kind",
     "run_episode",
     "run_policy_episode",
     "start_grid",
 ]
 POLICY_KINDS = ("mpc", "full", "lqr", "sb3", "do-mpc")
+"""The built-in policy kinds (:func:`policy_kinds` also lists those registered since)."""
+
+
+# ------------------------------------------------------------------------------------------------ policy kinds
+@dataclass(frozen=True)
+class PolicyKind:
+    """How the policies of one kind are built: builders named by module path (``"package.module:function"``).
+
+    A builder is called as ``builder(task, spec)`` with the :class:`~seagul_envs.tasks.base.Task` and the
+    :class:`PolicySpec` and returns a predictor (``predict(observation, state, episode_start, deterministic)``, the
+    stable-baselines3 protocol). Paths, not functions, so that a worker process imports the builder itself.
+    """
+
+    builder: str | None = None
+    """Builds a spec without a file (``spec.path is None``); None: the kind needs a file."""
+    file_builder: str | None = None
+    """Builds a spec with a file (a saved network or model at ``spec.path``); None: the ``builder`` builds every spec
+    of the kind (a file is ignored)."""
+
+
+_KINDS: dict[str, PolicyKind] = {
+    "mpc": PolicyKind(
+        "seagul_control.evaluation:build_lookahead_policy", "seagul_learn.policies:build_network_mpc_policy"
+    ),
+    "full": PolicyKind("seagul_control.evaluation:build_full_horizon_policy"),
+    "lqr": PolicyKind("seagul_control.evaluation:build_lqr_policy"),
+    "sb3": PolicyKind(None, "seagul_learn.policies:build_sb3_policy"),
+    "do-mpc": PolicyKind("seagul_control.evaluation:build_do_mpc_policy"),
+}
+_KINDS_LOCK = threading.Lock()
+
+
+def register_policy_kind(
+    kind: str, builder: str | None = None, file_builder: str | None = None, *, overwrite: bool = False
+) -> None:
+    """Add a policy kind that :class:`PolicySpec`, :func:`build_policy` and :func:`evaluate` accept.
+
+    Args:
+        kind: the name specs use (``PolicySpec(kind, ...)``).
+        builder: ``"package.module:function"`` building a spec without a file: ``function(task, spec)``.
+        file_builder: the same for a spec whose ``path`` names a file (a saved network or model).
+        overwrite: replace a kind already registered (a built-in one included).
+
+    The registration lives in this process; :func:`evaluate` sends the builder's path to its workers, which import
+    the module by name, so a module-level function of an importable module is all a worker needs.
+
+    Raises:
+        ValueError: neither builder given, a path not of the form ``"module:function"``, or ``kind`` already
+            registered differently and not ``overwrite``.
+    """
+    if builder is None and file_builder is None:
+        raise ValueError(f"policy kind {kind!r} needs a builder, a file_builder or both")
+    for path in (builder, file_builder):
+        if path is not None:
+            _split_path(path)
+    new = PolicyKind(builder, file_builder)
+    with _KINDS_LOCK:
+        old = _KINDS.get(kind)
+        if old is not None and old != new and not overwrite:
+            raise ValueError(f"policy kind {kind!r} is already registered as {old}; pass overwrite=True to replace it")
+        _KINDS[kind] = new
+
+
+def policy_kinds() -> dict[str, PolicyKind]:
+    """Every policy kind this process knows (the built-in :data:`POLICY_KINDS` and those registered since)."""
+    with _KINDS_LOCK:
+        return dict(_KINDS)
+
+
+def builder_path(spec: PolicySpec) -> str:
+    """The ``"module:function"`` that builds ``spec``: its kind's ``file_builder`` when it names a file, else its
+    ``builder`` (a kind without a ``file_builder`` ignores the file)."""
+    kind = policy_kinds()[spec.kind]
+    path = kind.file_builder if spec.path is not None and kind.file_builder is not None else kind.builder
+    assert path is not None  # PolicySpec.__post_init__ checked that a kind without a builder got a file
+    return path
+
+
+def _split_path(path: str) -> tuple[str, str]:
+    module, sep, name = path.partition(":")
+    if not sep or not module or not name:
+        raise ValueError(f"a builder is named 'package.module:function', got {path!r}")
+    return module, name
+
+
+def _load_builder(path: str) -> Callable[[Task, PolicySpec], Any]:
+    """The function ``path`` names, imported by module path (how a worker process finds a builder)."""
+    module, name = _split_path(path)
+    builder: Callable[[Task, PolicySpec], Any] = getattr(importlib.import_module(module), name)
+    return builder
 
 
 @dataclass(frozen=True)
@@ -63,7 +177,8 @@ class PolicySpec:
     """A policy to evaluate, by description (built in the worker)."""
 
     kind: str
-    """``"mpc"``, ``"full"``, ``"lqr"``, ``"sb3"`` or ``"do-mpc"`` (the peer MPC tool, ``seagul[anchors]``)."""
+    """``"mpc"``, ``"full"``, ``"lqr"``, ``"sb3"``, ``"do-mpc"`` (the peer MPC tool, ``seagul[anchors]``) or a kind
+    added with :func:`register_policy_kind`."""
     label: str = ""
     """Name in tables and figures (default: the kind)."""
     path: str | None = None
@@ -75,10 +190,12 @@ class PolicySpec:
     (``task.with_params(theta)``: e.g. the full-horizon MPC that knows the true parameters) instead of the model."""
 
     def __post_init__(self) -> None:
-        if self.kind not in POLICY_KINDS:
-            raise ValueError(f"unknown policy kind {self.kind!r}; use one of {list(POLICY_KINDS)}")
-        if self.kind == "sb3" and not self.path:
-            raise ValueError("an 'sb3' policy needs the path of a saved model")
+        kinds = policy_kinds()
+        if self.kind not in kinds:
+            raise ValueError(f"unknown policy kind {self.kind!r}; use one of {list(kinds)}")
+        kind = kinds[self.kind]
+        if kind.builder is None and not self.path:
+            raise ValueError(f"an {self.kind!r} policy needs the path of a saved model")
         if self.path is not None and not Path(self.path).is_file():
             raise FileNotFoundError(f"{self.kind} policy file {self.path!r} does not exist")
 
@@ -185,55 +302,34 @@ def heldout_starts(task: Task | str, n: int = 100) -> np.ndarray:
 
 
 # ------------------------------------------------------------------------------------------------ policies
-class SB3Policy:
-    """A saved stable-baselines3 model behind the predictor protocol on the raw env.
-
-    Beside the model it picks up ``vecnormalize.pkl`` (observation statistics) and ``view.json`` (the learner's
-    view: angle features, scaled time to go, actions in ``[-1, 1]``; ``seagul_envs.wrappers.LearnerView``), so a
-    model trained on the learner's view acts on the env's own observations and returns physical actions.
-    """
-
-    def __init__(
-        self, task: Task, path: str, algo: str = "PPO", vecnormalize: str | None = None, view: str | None = None
-    ) -> None:
-        import stable_baselines3
-        from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
-
-        import seagul_envs  # noqa: F401  (registers the envs)
-        from seagul_envs.wrappers import LearnerView, learner_env
-
-        cls = getattr(stable_baselines3, algo, None)
-        if cls is None:
-            raise ValueError(f"unknown stable-baselines3 algorithm {algo!r}")
-        self.model = cls.load(path, device="cpu")
-        view_file = view or _beside(path, "view.json")
-        self.view: LearnerView | None = LearnerView.load(view_file) if view_file is not None else None
-        stats = vecnormalize or _beside(path, "vecnormalize.pkl")
-        self.normalizer: Any = None
-        if stats is not None:
-            view_ = self.view
-            # The statistics were kept on the learner's observations: load them over an env that makes those.
-            venv = DummyVecEnv([lambda: episode_env(task) if view_ is None else learner_env(episode_env(task), view_)])
-            self.normalizer = VecNormalize.load(stats, venv)
-            self.normalizer.training = False
-            self.normalizer.norm_reward = False
-
-    def predict(
-        self, observation: Any, state: Any = None, episode_start: Any = None, deterministic: bool = True
-    ) -> tuple[np.ndarray, Any]:
-        obs = np.asarray(observation, dtype=np.float32)
-        if self.view is not None:
-            obs = self.view.observe(obs)
-        if self.normalizer is not None:
-            obs = self.normalizer.normalize_obs(obs)
-        action, state = self.model.predict(obs, state=state, episode_start=episode_start, deterministic=deterministic)
-        return (self.view.action(action) if self.view is not None else action), state
+def build_lqr_policy(task: Task, spec: PolicySpec) -> LQRPolicy:
+    """``"lqr"``: :class:`~seagul_control.lqr.LQRPolicy` with the spec's options."""
+    return LQRPolicy(task, **spec.option_dict())
 
 
-def _beside(path: str, name: str) -> str | None:
-    """The file ``name`` next to the model file, if any."""
-    candidate = Path(path).with_name(name)
-    return str(candidate) if candidate.is_file() else None
+def build_full_horizon_policy(task: Task, spec: PolicySpec) -> FullHorizonMPC:
+    """``"full"``: :class:`~seagul_control.mpc.FullHorizonMPC` with the spec's options."""
+    return FullHorizonMPC(task, **spec.option_dict())
+
+
+def build_lookahead_policy(
+    task: Task, spec: PolicySpec, value_function: CasadiValueFunction | None = None
+) -> LimitedLookaheadMPC:
+    """``"mpc"``: :class:`~seagul_control.mpc.LimitedLookaheadMPC` with ``value_function`` as its terminal cost (None:
+    the task's own terminal cost) over the spec's ``horizon`` option (default :func:`default_horizon`).
+
+    The builder of the learned kind (``"mpc"`` with a value network file, :mod:`seagul_learn.policies`) loads the
+    network and calls this with it."""
+    options = spec.option_dict()
+    horizon = int(options.pop("horizon", default_horizon(task)))
+    return LimitedLookaheadMPC(task, value_function, horizon, **options)
+
+
+def build_do_mpc_policy(task: Task, spec: PolicySpec) -> DoMPCPolicy:
+    """``"do-mpc"``: :class:`~seagul_control.do_mpc_policy.DoMPCPolicy` (needs ``seagul[anchors]``) over the spec's
+    ``horizon`` option (default :func:`default_horizon`)."""
+    options = spec.option_dict()
+    return DoMPCPolicy(task, int(options.pop("horizon", default_horizon(task))), **options)
 
 
 _POLICIES: dict[tuple[str, PolicySpec], Any] = {}
@@ -261,44 +357,22 @@ def _canonical_task(task: Task | str) -> Task:
     return known
 
 
-def build_policy(task: Task | str, spec: PolicySpec) -> Any:
+def build_policy(task: Task | str, spec: PolicySpec, builder: str | None = None) -> Any:
     """The predictor described by ``spec`` for ``task`` (a Task or a registered name; cached per process and task
-    content: solvers are built once)."""
+    content: solvers are built once), built by ``builder`` (``"module:function"``; default :func:`builder_path`).
+
+    Every registered kind is built, the learned ones by importing :mod:`seagul_learn.policies` by path (which
+    re-exports this function as the one place that knows every kind)."""
     task = _canonical_task(task)
     key = (task.fingerprint(), spec)
     if key not in _POLICIES:
-        _POLICIES[key] = _build(task, spec)
+        _POLICIES[key] = _build(task, spec, builder)
     return _POLICIES[key]
 
 
-def _build(task: Task, spec: PolicySpec) -> Any:
+def _build(task: Task, spec: PolicySpec, builder: str | None = None) -> Any:
     """A new predictor described by ``spec`` for ``task`` (uncached)."""
-    options = spec.option_dict()
-    if spec.kind == "lqr":
-        from seagul_control.lqr import LQRPolicy
-
-        policy: Any = LQRPolicy(task, **options)
-    elif spec.kind == "full":
-        from seagul_control.mpc import FullHorizonMPC
-
-        policy = FullHorizonMPC(task, **options)
-    elif spec.kind == "mpc":
-        from seagul_control.mpc import LimitedLookaheadMPC
-
-        value_function = None
-        if spec.path is not None:
-            from seagul_learn.value_network import ValueNetwork  # the only torch import, and only when asked
-
-            value_function = ValueNetwork.load(spec.path)
-        horizon = int(options.pop("horizon", default_horizon(task)))
-        policy = LimitedLookaheadMPC(task, value_function, horizon, **options)
-    elif spec.kind == "do-mpc":
-        from seagul_control.do_mpc_policy import DoMPCPolicy
-
-        policy = DoMPCPolicy(task, int(options.pop("horizon", default_horizon(task))), **options)
-    else:
-        policy = SB3Policy(task, str(spec.path), **options)
-    return policy
+    return _load_builder(builder or builder_path(spec))(task, spec)
 
 
 def default_horizon(task: Task) -> int:
@@ -310,9 +384,7 @@ def default_horizon(task: Task) -> int:
 def episode_env(task: Task, **kwargs: Any) -> Any:
     """The Gymnasium env the task's episodes run in: ``seagul_envs.make_env(task, **kwargs)`` (a registered task's
     shared object gives exactly ``gym.make`` of its id; any other Task, a variant included, is simulated as given)."""
-    from seagul_envs.envs.task_env import make_env
-
-    return make_env(task, **kwargs)
+    return seagul_envs.make_env(task, **kwargs)
 
 
 # ------------------------------------------------------------------------------------------------ episodes
@@ -325,19 +397,21 @@ def run_episode(
     record_queries: bool = False,
     env_id: str | None = None,
     robot: np.ndarray | None = None,
+    builder: str | None = None,
 ) -> EpisodeResult:
     """One episode of the policy ``spec`` describes from ``x0`` at the nominal time to go (``task``: a Task or a
     registered name), in ``gym.make(env_id)`` if given (another simulator of the task), else the task's env; with
     ``robot``, the env simulates the robot with those parameters (the policy plans with the model unless
     ``spec.knows_robot``: then a policy whose solvers take the parameters, ``FullHorizonMPC(model_params=True)``,
-    is re-targeted with ``set_robot``; any other is built for that robot, once per episode, and not cached)."""
+    is re-targeted with ``set_robot``; any other is built for that robot, once per episode, and not cached).
+    ``builder``: the ``"module:function"`` that builds the policy (default :func:`builder_path`)."""
     task = _canonical_task(task)
-    policy = build_policy(task, spec)
+    policy = build_policy(task, spec, builder)
     if getattr(policy, "model_params", False):
         # Its solvers take the robot's parameters: the oracle re-targets the one built policy (None: the model).
         policy.set_robot(robot if spec.knows_robot else None)
     elif robot is not None and spec.knows_robot:
-        policy = _build(task.with_params(robot), spec)
+        policy = _build(task.with_params(robot), spec, builder)
     episode, infos = run_policy_episode(
         task, policy, x0, index=index, record=record, label=spec.name, env_id=env_id, robot=robot
     )
@@ -369,10 +443,6 @@ def run_policy_episode(
     ``robot`` the env simulates the robot with those parameters (``reset(options={"params": robot})``); success and
     cost are judged by the task's rule as always.
     """
-    import gymnasium as gym
-
-    import seagul_envs  # noqa: F401  (registers the envs)
-
     render: dict[str, Any] = {} if frames is None else {"render_mode": "rgb_array"}
     env = gym.make(env_id, **render) if env_id else episode_env(task, **render)
     reset: dict[str, Any] = {"state": np.asarray(x0, dtype=float)}
@@ -424,10 +494,6 @@ def run_policy_episode(
 
 def check_env_task(task: Task, env_id: str) -> None:
     """Raise a ValueError unless ``gym.make(env_id)`` simulates ``task`` (same name, state and input sizes)."""
-    import gymnasium as gym
-
-    import seagul_envs  # noqa: F401  (registers the envs)
-
     try:
         env = gym.make(env_id)
     except gym.error.Error as exc:
@@ -454,9 +520,10 @@ def _run_chunk(
     record_queries: bool = False,
     env_id: str | None = None,
     robots: np.ndarray | None = None,
+    builder: str | None = None,
 ) -> list[EpisodeResult]:
     return [
-        run_episode(task, spec, x0, i, record, record_queries, env_id, None if robots is None else robots[k])
+        run_episode(task, spec, x0, i, record, record_queries, env_id, None if robots is None else robots[k], builder)
         for k, (x0, i) in enumerate(zip(starts, indices, strict=True))
     ]
 
@@ -480,14 +547,12 @@ def evaluate(
     ``knows_robot`` (the oracle that plans with the true parameters).
 
     ``task`` is a Task object or a registered name, resolved once here; the Task itself is what the worker
-    processes receive (nothing is looked up by name there). ``record`` keeps every visited state,
-    ``record_queries`` the MPCs' planned terminal states (for the planner-query error,
+    processes receive (nothing is looked up by name there), with each spec's builder path (:func:`builder_path`,
+    resolved here, so a kind registered in this process builds in the workers too). ``record`` keeps every visited
+    state, ``record_queries`` the MPCs' planned terminal states (for the planner-query error,
     :func:`seagul_learn.closed_loop.query_errors`). ``env_id`` runs the episodes in another registered env of the
     same task (e.g. ``"SeagulAcrobotMujoco-v0"``: the MuJoCo physics under the analytic model's policies).
     """
-    from joblib import Parallel, delayed
-    from tqdm.auto import tqdm
-
     task = _canonical_task(resolve_task(task))
     task_name = task.name
     starts = np.asarray(starts, dtype=float)
@@ -511,10 +576,11 @@ def evaluate(
     names = [s.name for s in specs]
     if len(set(names)) != len(names):
         raise ValueError(f"policy labels must be unique, got {names}")
+    builders = {spec: builder_path(spec) for spec in specs}
     # Build each policy here first: a JIT compile then happens once and the workers load the cached object code.
     for spec in specs:
         if not (robots is not None and spec.knows_robot):
-            build_policy(task, spec)
+            build_policy(task, spec, builders[spec])
     jobs = []
     for spec in specs:
         for lo in range(0, len(starts), chunk_size):
@@ -524,20 +590,18 @@ def evaluate(
     results: list[EpisodeResult] = []
     if workers == 1:
         outputs: Iterator[list[EpisodeResult]] = (
-            _run_chunk(task, spec, starts[idx], idx, record, record_queries, env_id, _rows(robots, idx))
+            _run_chunk(task, spec, starts[idx], idx, record, record_queries, env_id, _rows(robots, idx), builders[spec])
             for spec, idx in jobs
         )
     else:
         # A task read from a file (``--task path/file.py:factory``) lives in a module that joblib's reused worker
         # processes cannot import (they started before it was loaded): its classes travel by value.
-        from cloudpickle import register_pickle_by_value
-
-        from seagul_envs.tasks import file_task_modules
-
         for module in file_task_modules():
             register_pickle_by_value(module)
         outputs = Parallel(n_jobs=int(workers), return_as="generator")(
-            delayed(_run_chunk)(task, spec, starts[idx], idx, record, record_queries, env_id, _rows(robots, idx))
+            delayed(_run_chunk)(
+                task, spec, starts[idx], idx, record, record_queries, env_id, _rows(robots, idx), builders[spec]
+            )
             for spec, idx in jobs
         )
     for chunk in outputs:
@@ -554,16 +618,21 @@ def _rows(robots: np.ndarray | None, idx: list[int]) -> np.ndarray | None:
 
 
 # ------------------------------------------------------------------------------------------------ moved names
-_MOVED_TO_REPORT = ("summarize", "write_outputs", "plot_heatmaps", "plot_glider_trajectories")
-"""Table and figure functions that moved to :mod:`seagul_learn.report` (old names kept for one release)."""
+_MOVED: dict[str, str] = {
+    "summarize": "seagul_learn.report",
+    "write_outputs": "seagul_learn.report",
+    "plot_heatmaps": "seagul_learn.report",
+    "plot_glider_trajectories": "seagul_learn.report",
+    "SB3Policy": "seagul_learn.policies",
+}
+"""Names that moved up to ``seagul_learn`` -> their module (old names kept for one release, imported by module path
+on first use: this module never imports ``seagul_learn``)."""
 
 
 def __getattr__(name: str) -> Any:
-    """The moved table/figure functions, imported lazily from :mod:`seagul_learn.report` with a deprecation warning;
+    """The names that moved to ``seagul_learn`` (:data:`_MOVED`), imported lazily with a deprecation warning;
     ``ENV_IDS``, a deprecated name-keyed view of the built-in tasks' ``profile.env_id``."""
     if name == "ENV_IDS":
-        from seagul_envs.tasks import BUILTIN_TASKS
-
         warnings.warn(
             "seagul_control.evaluation.ENV_IDS is deprecated; episodes run in episode_env(task) "
             "(seagul_envs.make_env), the id is task.profile.env_id",
@@ -571,12 +640,13 @@ def __getattr__(name: str) -> Any:
             stacklevel=2,
         )
         return {n: make_task(n).profile.env_id for n in sorted(BUILTIN_TASKS)}
-    if name in _MOVED_TO_REPORT:
+    if name in _MOVED:
+        module = _MOVED[name]
         warnings.warn(
             f"seagul_control.evaluation.{name} is deprecated and will be removed in the next release; "
-            f"use seagul_learn.report.{name}",
+            f"use {module}.{name}",
             DeprecationWarning,
             stacklevel=2,
         )
-        return getattr(importlib.import_module("seagul_learn.report"), name)
+        return getattr(importlib.import_module(module), name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -25,6 +25,9 @@ _LAZY: dict[str, str] = {
     "AdversarialOptions": "seagul_learn.samplers",
     "TrainConfig": "seagul_learn.training",
     "train": "seagul_learn.training",
+    "PolicySpec": "seagul_learn.policies",
+    "SB3Policy": "seagul_learn.policies",
+    "build_policy": "seagul_learn.policies",
 }
 
 

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 import seagul_envs  # noqa: F401  (registers the envs)
-from seagul_control.evaluation import SB3Policy, heldout_starts, start_grid
+from seagul_control.evaluation import heldout_starts, start_grid
 from seagul_envs.wrappers import LearnerView, learner_env
 from seagul_learn.baselines import (
     SB3Config,
@@ -25,6 +25,7 @@ from seagul_learn.baselines import (
     tuned,
     validation_starts,
 )
+from seagul_learn.policies import SB3Policy
 
 
 def test_tuned_settings_are_data_keyed_by_env_id_with_overrides_over_them():

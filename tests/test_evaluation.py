@@ -130,6 +130,63 @@ def test_policy_spec_errors():
         evaluate("acrobot", [PolicySpec("lqr"), PolicySpec("lqr")], np.zeros((1, 4)), progress=False)
 
 
+def test_each_kind_names_its_builder_by_module_path_and_the_learned_ones_live_in_seagul_learn(tmp_path):
+    """The control kinds are built by ``seagul_control``; an ``"mpc"`` spec with a network file and an ``"sb3"``
+    spec by :mod:`seagul_learn.policies`, whose ``build_policy`` is the same function that knows every kind."""
+    from seagul_control import evaluation as ev
+    from seagul_learn import policies
+
+    net = tmp_path / "net.pt"
+    net.write_bytes(b"")
+    assert ev.builder_path(PolicySpec("lqr")) == "seagul_control.evaluation:build_lqr_policy"
+    assert ev.builder_path(PolicySpec("mpc")) == "seagul_control.evaluation:build_lookahead_policy"
+    assert ev.builder_path(PolicySpec("mpc", path=str(net))) == "seagul_learn.policies:build_network_mpc_policy"
+    assert ev.builder_path(PolicySpec("sb3", path=str(net))) == "seagul_learn.policies:build_sb3_policy"
+    for kind in ev.POLICY_KINDS:
+        for path in (ev.policy_kinds()[kind].builder, ev.policy_kinds()[kind].file_builder):
+            if path is not None:
+                module, name = path.split(":")
+                assert callable(getattr(__import__(module, fromlist=[name]), name)), path
+    assert policies.build_policy is ev.build_policy and policies.PolicySpec is PolicySpec
+
+
+def test_a_kind_registered_at_run_time_is_built_in_the_worker_processes():
+    """The workers start with the module's own registry: the caller's registration reaches them as the builder's
+    module path, so a registered kind evaluates with two processes exactly as with one (and as the kind it
+    copies)."""
+    from seagul_control import evaluation as ev
+
+    with pytest.raises(ValueError, match="module:function"):
+        ev.register_policy_kind("bad", "seagul_control.evaluation.build_lqr_policy")
+    with pytest.raises(ValueError, match="needs a builder"):
+        ev.register_policy_kind("bad")
+    with pytest.raises(ValueError, match="already registered"):
+        ev.register_policy_kind("lqr", "seagul_control.evaluation:build_full_horizon_policy")
+    ev.register_policy_kind("lqr-copy", "seagul_control.evaluation:build_lqr_policy")
+    try:
+        ev.register_policy_kind("lqr-copy", "seagul_control.evaluation:build_lqr_policy")  # the same again: no-op
+        task = make_task("acrobot")
+        starts = task.goal + np.array([[0.05, -0.05, 0.0, 0.0], [-0.1, 0.1, 0.2, 0.0]])
+        specs = [PolicySpec("lqr"), PolicySpec("lqr-copy")]
+        one = evaluate(task, specs, starts, workers=1, progress=False)
+        two = evaluate(task, specs, starts, workers=2, progress=False, chunk_size=1)
+        assert [r.policy for r in two] == ["lqr", "lqr", "lqr-copy", "lqr-copy"]
+        for a, b in zip(one, two, strict=True):
+            np.testing.assert_allclose(a.final_state, b.final_state, rtol=1e-9, atol=1e-12)
+        np.testing.assert_array_equal(two[0].final_state, two[2].final_state)
+    finally:
+        ev._KINDS.pop("lqr-copy", None)
+
+
+def test_sb3_policy_moved_to_seagul_learn_policies_and_its_old_name_warns():
+    import seagul_control.evaluation as ev
+    from seagul_learn.policies import SB3Policy
+
+    with pytest.warns(DeprecationWarning, match=r"seagul_control\.evaluation\.SB3Policy .*seagul_learn\.policies"):
+        old = ev.SB3Policy
+    assert old is SB3Policy
+
+
 def test_cli_evaluate(tmp_path, capsys):
     from seagul_learn.cli import main
 

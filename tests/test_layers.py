@@ -1,0 +1,96 @@
+"""The package layers do not leak: ``seagul_envs`` (tasks, envs) is the bottom, ``seagul_control`` (NLP, MPC, LQR,
+evaluation) sits on it, ``seagul_learn`` (torch, training, the CLI) on both.
+
+Every module of a lower layer is imported in a fresh interpreter in which the upper layers (and torch) cannot be
+imported (``sys.modules[name] = None`` makes ``import name`` raise ``ImportError``), so an import of an upper layer at
+module level anywhere fails the test, however indirect. The sources are also read: a lower layer names an upper one
+only as a string (a module path resolved on use, such as a policy kind's builder), never in an import statement.
+"""
+
+from __future__ import annotations
+
+import ast
+import json
+import pkgutil
+import subprocess
+import sys
+from pathlib import Path
+
+import pytest
+
+import seagul_control
+import seagul_envs
+
+LOWER = {"seagul_envs": ("seagul_control", "seagul_learn", "torch"), "seagul_control": ("seagul_learn", "torch")}
+"""Each lower package -> the packages its modules must import without."""
+
+
+def modules(package: object) -> list[str]:
+    """Every module of ``package`` (sub-packages included), by dotted name."""
+    name = package.__name__  # type: ignore[attr-defined]
+    found = [name]
+    for info in pkgutil.walk_packages(package.__path__, prefix=name + "."):  # type: ignore[attr-defined]
+        found.append(info.name)
+    return sorted(found)
+
+
+def import_all_without(names: list[str], blocked: tuple[str, ...]) -> dict[str, str]:
+    """Import every module of ``names`` in a subprocess where ``blocked`` cannot be imported; failures by module."""
+    code = (
+        "import importlib, json, sys, warnings\n"
+        f"for blocked in {list(blocked)!r}:\n"
+        "    sys.modules[blocked] = None\n"
+        "failed = {}\n"
+        f"for name in {names!r}:\n"
+        "    try:\n"
+        "        with warnings.catch_warnings():\n"
+        "            warnings.simplefilter('ignore')\n"
+        "            importlib.import_module(name)\n"
+        "    except Exception as exc:\n"
+        "        failed[name] = f'{type(exc).__name__}: {exc}'\n"
+        "print(json.dumps(failed))\n"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("package", [seagul_envs, seagul_control], ids=lambda p: p.__name__)
+def test_every_module_of_a_lower_layer_imports_without_the_layers_above(package: object) -> None:
+    names = modules(package)
+    assert len(names) > 5  # the walk found the package's modules
+    failed = import_all_without(names, LOWER[package.__name__])  # type: ignore[attr-defined]
+    assert failed == {}
+
+
+def test_the_check_catches_an_upper_layer_import() -> None:
+    """The subprocess check is not vacuous: a module that needs a blocked package is reported."""
+    failed = import_all_without(["seagul_control.evaluation", "seagul_learn.policies"], ("torch",))
+    assert list(failed) == ["seagul_learn.policies"]  # it loads value networks
+    assert "import of torch halted" in failed["seagul_learn.policies"]
+    failed = import_all_without(["seagul_envs.registration"], ("gymnasium",))  # an indirect import is caught too
+    assert "import of gymnasium halted" in failed["seagul_envs.registration"]
+
+
+def imported_packages(path: Path) -> set[str]:
+    """The top-level packages every import statement of a source file names (at any depth in the file)."""
+    found = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            found.update(alias.name.split(".")[0] for alias in node.names)
+        elif isinstance(node, ast.ImportFrom) and node.module and node.level == 0:
+            found.add(node.module.split(".")[0])
+    return found
+
+
+@pytest.mark.parametrize("package", [seagul_envs, seagul_control], ids=lambda p: p.__name__)
+def test_no_import_statement_of_a_lower_layer_names_an_upper_one(package: object) -> None:
+    """Not even inside a function: the upper layers are reached by module path strings only."""
+    root = Path(package.__path__[0])  # type: ignore[attr-defined]
+    sources = sorted(root.rglob("*.py"))
+    assert sources
+    offenders = {
+        str(path.relative_to(root.parent)): sorted(imported_packages(path) & set(LOWER[package.__name__]))  # type: ignore[attr-defined]
+        for path in sources
+    }
+    assert {path: bad for path, bad in offenders.items() if bad} == {}
