@@ -94,3 +94,36 @@ def test_no_import_statement_of_a_lower_layer_names_an_upper_one(package: object
         for path in sources
     }
     assert {path: bad for path, bad in offenders.items() if bad} == {}
+
+
+# ------------------------------------------------------------------------------------------------ seagul_control.io
+def test_io_is_public_and_its_old_private_name_is_the_same_module() -> None:
+    """Every layer writes files through ``seagul_control.io`` (standard library only); ``seagul_control._io`` is
+    the same module object, so patching either patches both."""
+    code = (
+        "import sys, seagul_control.io, seagul_control._io as old; "
+        "from seagul_control import _io; "
+        "assert old is _io is seagul_control.io, 'two modules'; "
+        "bad = [m for m in ('torch', 'casadi', 'numpy', 'seagul_learn') if m in sys.modules]; "
+        "sys.exit(f'imported {bad}' if bad else 0)"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+
+
+def test_json_files_are_written_atomically_with_the_callers_layout(tmp_path: Path) -> None:
+    from seagul_control import io
+
+    data = {"b": [1, 2.5], "a": float("nan"), "c": None}
+    io.atomic_write_json(tmp_path / "sub" / "x.json", data, indent=1, sort_keys=True, newline=True)
+    assert (tmp_path / "sub" / "x.json").read_text() == json.dumps(data, indent=1, sort_keys=True) + "\n"
+    io.atomic_write_json(tmp_path / "y.json", data)
+    assert (tmp_path / "y.json").read_text() == json.dumps(data)  # json.dumps' own layout by default
+    back = io.read_json(tmp_path / "y.json")
+    assert back["b"] == [1, 2.5] and back["a"] != back["a"]  # NaN round trip
+    with pytest.raises(ValueError, match="Out of range float"):
+        io.atomic_write_json(tmp_path / "z.json", data, allow_nan=False)
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["sub", "y.json"]  # nothing written, no temp file left
+    (tmp_path / "cut.json").write_text('{"a": [1, ')
+    with pytest.raises(ValueError, match=r"cut\.json is not a JSON file"):
+        io.read_json(tmp_path / "cut.json")
