@@ -52,13 +52,13 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Any, Literal
+from typing import Any, ClassVar, Literal
 
 import numpy as np
 
 from seagul_envs import Task
 from seagul_learn.dataset import SolveRecord, TrainingArrays
-from seagul_learn.samplers import StartPool
+from seagul_learn.samplers import SamplerOptions, StartPool
 from seagul_learn.solving import SolveRunner, tail_horizon
 from seagul_learn.value_network import ValueEnsemble, ValueModel
 
@@ -75,12 +75,16 @@ _STREAM_SELECT_FINAL_SLICE = 19
 _STREAM_EPISODE_SLICE = 20
 
 
-@dataclass(frozen=True)
-class ClosedLoopOptions:
-    """Settings of :class:`ClosedLoopSampler` (module docstring)."""
+@dataclass(frozen=True, eq=False)
+class ClosedLoopOptions(SamplerOptions):
+    """Settings of :class:`ClosedLoopSampler` (module docstring), and of what the training loop does around it
+    (``collect_refit``, ``keep_best``): ``TrainConfig(sampler=ClosedLoopOptions(...))`` chooses the sampler."""
+
+    name: ClassVar[str] = "closed-loop"
 
     episodes: int = 20
-    """Closed-loop episodes per round (starts drawn uniformly from X0, nominal time to go)."""
+    """Closed-loop episodes per round (training starts from X0 at the nominal time to go, never the evaluation
+    grid)."""
     horizon: int | None = None
     """Lookahead steps of the collecting MPC (None: the task's default, as deployed)."""
     trust_region: Literal["lqr", "box", "none"] | None = None
@@ -90,8 +94,9 @@ class ClosedLoopOptions:
     """Rounds at the start that collect with the ``"lqr"``-guarded MPC instead."""
     selection: Selection = "farthest"
     """How the round's queries are chosen among the collected ones."""
-    tail_stride: int = 1
-    """Only queries whose tail has a multiple of this many intervals (fixed-step tasks)."""
+    tail_stride: int = 5
+    """Only queries whose tail has a multiple of this many intervals (fixed-step tasks; acrobot: 5 = every 0.5 s,
+    so 9 tail solvers are built, ~12 s of compilation each on first use, instead of 45 with 1)."""
     uniform_fraction: float = 0.0
     """Share of each round's solves spent on uniform draws from X0 (the baseline's starts)."""
     uniform_solves: int = 0
@@ -116,6 +121,20 @@ class ClosedLoopOptions:
     (:func:`seagul_control.evaluation.sample_grid_slice`: the acrobot at rest), random draws, never the grid's points.
     Uniform draws over the 4-D X0 almost never start at rest, where the grid's starts are. 0: every start uniform
     over X0 (exactly the uniform stream's draws)."""
+
+    collect_refit: bool = False
+    """Training loop: each round after the ``"lqr"`` warm-up rounds collects with a refit of the buffer so far
+    (``TrainConfig.refit.steps`` Adam steps, as the final refit: the network that would be deployed if training
+    stopped there) instead of the loop's network, so the queries are the deployed controller's (DAgger). Costs one
+    refit per such round; the loop's own training is unchanged. Needs ``refit.steps > 0``."""
+    keep_best: bool = False
+    """Training loop: deploy the collector that flew best. Each round's collecting MPC runs ``episodes`` episodes
+    from new X0 starts (never the evaluation's) with the network of the round before; the network of the round whose
+    deployed collector (guard ``trust_region``) succeeded most often (ties: the later, trained on more data) is kept
+    as ``network_best.pt`` (with ``network_best.json``: its round, successes, solves) and becomes ``network.pt``, the
+    loop's last network ``network_last.pt``; snapshots are the best so far. Model selection on training episodes:
+    round-to-round closed-loop success swings widely (glider: 4 to 19 of 20 over 60 rounds of one seed,
+    docs/experiments/closed-loop.md). Needs ``refit.steps = 0``."""
 
     def __post_init__(self) -> None:
         if self.episodes < 1:
@@ -342,7 +361,7 @@ class ClosedLoopSampler:
                 horizon,
                 trust_region=guard,  # type: ignore[arg-type]
                 jit=self.options.jit,
-                solver=self.options.solver,  # type: ignore[arg-type]
+                solver=self.options.solver,
                 solver_options=extra,
                 # Over robots: the deployed robust MPC, planning (and querying the value) for its estimate.
                 model_params=self.robots,

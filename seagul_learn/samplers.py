@@ -36,9 +36,10 @@ iterations often appear to suffice", paper §5); ``stop_on_decrease``; ``optimiz
 
 from __future__ import annotations
 
+import dataclasses
 import math
 from dataclasses import dataclass, field
-from typing import Literal, Protocol
+from typing import Any, ClassVar, Literal, Protocol
 
 import numpy as np
 
@@ -109,6 +110,41 @@ class Sampler(Protocol):
     def sample(self, num_solves: int, network: ValueModel, runner: SolveRunner) -> list[SolveRecord]: ...
 
 
+class SamplerOptions:
+    """Base of the samplers' option classes (:class:`UniformOptions`, :class:`AdversarialOptions`,
+    :class:`~seagul_learn.closed_loop.ClosedLoopOptions`): ``TrainConfig.sampler`` holds one of them, and the class
+    chosen is the sampler. ``name`` is the sampler's name (``"uniform"``, ``"adversarial"``, ``"closed-loop"``),
+    which an instance also compares equal to, so ``config.sampler == "closed-loop"`` reads as it did when the field
+    was that string."""
+
+    name: ClassVar[str] = ""
+
+    def __eq__(self, other: object) -> bool:
+        if isinstance(other, str):
+            return self.name == other
+        if type(other) is not type(self):
+            return NotImplemented
+        return dataclasses.astuple(self) == dataclasses.astuple(other)  # type: ignore[call-overload]
+
+    def __hash__(self) -> int:
+        return hash((self.name, dataclasses.astuple(self)))  # type: ignore[call-overload]
+
+    def to_dict(self) -> dict[str, Any]:
+        """The options as JSON-ready data with the sampler's name under ``"name"`` (``TrainConfig.to_dict``)."""
+        out: dict[str, Any] = {"name": self.name}
+        for f in dataclasses.fields(self):  # type: ignore[arg-type]
+            value = getattr(self, f.name)
+            out[f.name] = list(value) if isinstance(value, tuple) else value
+        return out
+
+
+@dataclass(frozen=True, eq=False)
+class UniformOptions(SamplerOptions):
+    """The uniform baseline (:class:`UniformSampler`): the seed's uniform starts in order; nothing to set."""
+
+    name: ClassVar[str] = "uniform"
+
+
 class UniformSampler:
     """The baseline: solve the pool's starts in order (uniform over X0, nominal ``tau``)."""
 
@@ -124,9 +160,11 @@ class UniformSampler:
         return runner.solve(starts, taus, self.name, thetas=self.pool.thetas_of(ids))
 
 
-@dataclass(frozen=True)
-class AdversarialOptions:
-    """Settings of the adversarial sampler (see the module docstring for the exact rules)."""
+@dataclass(frozen=True, eq=False)
+class AdversarialOptions(SamplerOptions):
+    """Settings of the adversarial sampler, paper Alg. 1 (see the module docstring for the exact rules)."""
+
+    name: ClassVar[str] = "adversarial"
 
     max_steps: int = 5
     """Solves per chain at most (the start counts as one)."""
@@ -151,6 +189,7 @@ class AdversarialOptions:
     """End a chain when its new iterate's loss is below the previous one's (the ascent overshot)."""
 
     def __post_init__(self) -> None:
+        object.__setattr__(self, "adam_betas", tuple(float(b) for b in self.adam_betas))
         if self.max_steps < 1:
             raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
         if not self.step_fraction > 0:

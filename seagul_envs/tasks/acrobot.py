@@ -28,12 +28,12 @@ import scipy.linalg
 from seagul_envs.tasks.base import Task, rk4_map
 from seagul_envs.tasks.parameters import ParameterSpace, parametric_dynamics
 from seagul_envs.tasks.profile import (
-    DEFAULT_PRESETS,
     EvaluationGrid,
     SolverDefaults,
     SuccessRule,
     TaskProfile,
     ValidationSpec,
+    with_recipe_book,
 )
 
 SUCCESS_DISTANCE = 0.05
@@ -52,89 +52,12 @@ starts (no restoration on its line-search failures); ``ipopt_fast`` (IPOPT accep
 were poor local optima (34-129, while IPOPT from "the goal everywhere" found 16-35) and only one good label exceeded
 30 (30.007; the 95th percentile is 24), so values above 30 trigger a re-solve; it recovered all 6."""
 
-# Quick: the closed-loop method starts its loop after 20 uniform solves (a 10-solve network's planner queries are
-# states with values of 1e4 and more), 10 episodes a round, tails every 1 s (4 tail solvers to compile on a fresh
-# machine), labels clipped at 300 (docs/experiments/closed-loop.md).
-_QUICK_CLOSED_LOOP: tuple[tuple[str, object], ...] = (
-    ("closed-loop:cl_uniform_solves", 20),
-    ("closed-loop:cl_episodes", 10),
-    ("closed-loop:cl_tail_stride", 10),
-    ("closed-loop:value_cap", 300.0),
-)
-
-PRESETS: dict[str, dict[str, object]] = {
-    "smoke": dict(DEFAULT_PRESETS["smoke"]),  # the generic smoke preset
-    "quick": {
-        # 4 seeds x budgets (20, 40, 60) x 10 x 10 grid had not finished after 16 min from a fresh clone with cold
-        # caches: every snapshot of every seed is a closed-loop evaluation. 3 seeds x 2 budgets x 8 x 8 is ~1/3.
-        "seeds": 3,
-        "budget": 60,
-        "solves_per_round": 10,
-        "train_steps_per_round": 500,
-        "grid_points": 8,
-        "reference_grid_points": 5,
-        "mpc_horizon": 5,
-        "budgets": (30, 60),
-        "train_overrides": _QUICK_CLOSED_LOOP,
-        "query_samples": 10,
-        "query_tail_stride": 10,
-    },
-    "paper": {
-        "seeds": 10,
-        "budget": 100,
-        "solves_per_round": 10,
-        "train_steps_per_round": 500,
-        "grid_points": 20,
-        "reference_grid_points": 10,
-        "mpc_horizon": 5,
-        "budgets": (20, 50, 100),
-        "query_samples": 50,
-    },
-}
-"""``seagul reproduce acrobot`` presets (:class:`~seagul_learn.experiment.Preset` fields; paper §6 for ``paper``)."""
-
-TRAIN_RECIPE: dict[str, object] = {
-    # 1,000 solves: 500 uniform, then 10 closed-loop rounds of 50 tail solves (5 collected by the "lqr"-guarded MPC,
-    # 5 by the deployed one on a refit of the buffer; half of each round's tails from visited states, half of its
-    # episodes at rest), Sobolev labels capped at 50, a 2 x 64 network; the final refit fits 6 members and keeps the
-    # 3 whose unguarded MPC flies best on 400 training starts (half at rest). 5 seeds: 99.25 % of the 20 x 20 grid,
-    # 99 % of 100 held-out starts (full horizon 99.75 % / 93 %); the same split at 2,000 solves: 98.75 % / 98 %
-    # (docs/experiments/closed-loop.md).
-    "sampler": "closed-loop",
-    "budget": 1000,
-    "hidden": (64, 64),
-    "solves_per_round": 50,
-    "train_steps_per_round": 1000,
-    "sobolev_weight": 1.0,
-    "value_cap": 50.0,
-    "grad_label_max": 10.0,
-    "renormalize": True,
-    "refit_steps": 20000,
-    "cl_trust_region": "none",
-    "cl_uniform_solves": 500,
-    "cl_warmup_rounds": 5,
-    "cl_collect_refit": True,
-    "cl_selection": "random",
-    "cl_episodes": 20,
-    "cl_jit": False,
-    "cl_visited_fraction": 0.5,
-    "cl_slice_fraction": 0.5,
-    "refit_ensemble": 3,
-    "ensemble_pessimism": 0.0,
-    "refit_candidates": 6,
-    "select_episodes": 100,
-    "select_finalists": 4,
-    "select_final_episodes": 300,
-    "select_slice_fraction": 0.5,
-}
-"""The acrobot's measured best :class:`~seagul_learn.training.TrainConfig` settings
-(``benchmarks/bench_closed_loop.py``'s shipped method ``closed-loop+rest-1000``; a test keeps the two equal)."""
-
 
 def acrobot_profile(p: AcrobotParams) -> TaskProfile:
-    """The acrobot's :class:`TaskProfile` (docs/reference/spec.md §3.6): validation set, success, LQR weights, presets,
-    ..."""
-    return TaskProfile(
+    """The acrobot's :class:`TaskProfile` (docs/reference/spec.md §3.6): validation set, success, LQR weights, MPC
+    defaults, ..."""
+    # Training recipes and experiment presets: seagul_learn/recipes/acrobot.yml
+    profile = TaskProfile(
         solver=SOLVER_DEFAULTS,
         # 10 x 10 over (th1, th2) at zero velocity (X0's velocity centre is 0) + 100 uniform 4-D draws.
         validation=ValidationSpec(grid_coords=(0, 1), grid_points=10, num_random=100),
@@ -143,8 +66,6 @@ def acrobot_profile(p: AcrobotParams) -> TaskProfile:
         success_text=f"||x({p.tau:g} s) - x*|| < {SUCCESS_DISTANCE:g}",
         lqr_Q=np.diag(p.Q),
         lqr_R=np.array([[p.R]]),
-        presets=PRESETS,
-        train_recipe=TRAIN_RECIPE,
         env_id="SeagulAcrobot-v0",
         mpc_horizon=5,  # paper §6: 5 steps (0.5 s)
         # the shipped networks are selected and measured unguarded: 99.25 % of the grid
@@ -158,6 +79,7 @@ def acrobot_profile(p: AcrobotParams) -> TaskProfile:
             "seed-0 networks (Fig. 2)"
         ),
     )
+    return with_recipe_book(profile, "acrobot")
 
 
 @dataclass(frozen=True)

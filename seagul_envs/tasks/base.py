@@ -263,8 +263,11 @@ class Task:
         * ``params`` (a dataclass: its type and every field's name and value) and ``extras`` (its keys and values:
           arrays, numbers, strings, containers, dataclasses and CasADi functions by content; other callables, e.g. a
           renderer, by their module and qualified name; any other object by its pickle);
-        * ``profile`` (a dataclass like ``params``: the solver plan, validation set, success rule, presets, ...), so
-          a task whose solver plan or validation set differs never shares a cache either.
+        * ``profile`` (a dataclass like ``params``: the solver plan, validation set, success rule, MPC defaults, ...),
+          so a task whose solver plan or validation set differs never shares a cache either. The deprecated
+          ``presets`` and ``train_recipe`` count only when a task gives them (training recipes and presets are not
+          the problem: ``seagul_learn/recipes/*.yml``); a dataclass field whose metadata has a
+          ``"fingerprint_skip"`` predicate that is true of the dataclass is left out.
 
         It is deterministic across processes and runs (no ids or addresses enter it; checked for the built-in tasks),
         but CasADi's serialisation format belongs to its version, so another CasADi may give other fingerprints (a
@@ -345,6 +348,9 @@ def _feed(digest: Any, value: Any, where: str) -> None:
     elif dataclasses.is_dataclass(value) and not isinstance(value, type):
         put(b"dataclass", f"{type(value).__module__}.{type(value).__qualname__}".encode())
         for f in dataclasses.fields(value):
+            skip = f.metadata.get("fingerprint_skip")
+            if skip is not None and skip(value):
+                continue  # a field that says it does not count here (the profile's deprecated recipes, not given)
             _feed(digest, f.name, where)
             _feed(digest, getattr(value, f.name), f"{where}.{f.name}")
     elif callable(value):

@@ -24,13 +24,13 @@ import numpy as np
 from seagul_envs.tasks.base import Task
 from seagul_envs.tasks.parameters import ParameterSpace, parametric_dynamics
 from seagul_envs.tasks.profile import (
-    SMOKE_TRAIN_OVERRIDES,
     EvaluationGrid,
     SolverDefaults,
     SuccessRule,
     TaskProfile,
     TrajectoryPlot,
     ValidationSpec,
+    with_recipe_book,
 )
 
 PERCH_POSITION_TOL = 0.05
@@ -52,82 +52,12 @@ corner (``M = 1e3`` changed that start's value from 948 to 618; from 1e4 on the 
 problem's), and a planned terminal state from which the perch is unreachable gets the soft value, e.g. 117 from
 the first plan of a uniform-trained MPC that ends 6 cm past the perch (docs/experiments/closed-loop.md)."""
 
-PRESETS: dict[str, dict[str, object]] = {
-    "smoke": {
-        "seeds": 2,
-        "budget": 2,
-        "solves_per_round": 2,
-        "train_steps_per_round": 20,
-        "grid_points": 1,
-        "reference_grid_points": 1,
-        "mpc_horizon": 5,
-        "budgets": (2,),
-        "train_overrides": SMOKE_TRAIN_OVERRIDES,
-        "query_samples": 2,
-        "query_tail_stride": 10,
-    },
-    "quick": {
-        "seeds": 3,
-        "budget": 40,
-        "solves_per_round": 10,
-        "train_steps_per_round": 500,
-        "grid_points": 4,
-        "reference_grid_points": 3,
-        "mpc_horizon": 10,
-        "budgets": (10, 20, 40),
-        "query_samples": 20,
-    },
-    "paper": {
-        "seeds": 10,
-        "budget": 100,
-        "solves_per_round": 10,
-        "train_steps_per_round": 500,
-        "grid_points": 6,
-        "reference_grid_points": 4,
-        "mpc_horizon": 10,
-        "budgets": (20, 50, 100),
-        "query_samples": 50,
-    },
-}
-"""``seagul reproduce glider`` presets (:class:`~seagul_learn.experiment.Preset` fields)."""
-
-TRAIN_RECIPE: dict[str, object] = {
-    # 2,000 solves: 1,000 uniform, then 20 closed-loop rounds of 50 tail solves collected by the deployed, unguarded
-    # MPC from the first round, Sobolev labels capped at 1,500 (values of 40-1,000 on X0), a 2 x 64 network; the
-    # network of the round whose collector flew best is deployed (cl_keep_best). 7 seeds: 91.7 % of the 6 x 6 grid
-    # perched, 89 % of 100 held-out starts (full horizon 100 %; docs/experiments/closed-loop.md).
-    "sampler": "closed-loop",
-    "budget": 2000,
-    "hidden": (64, 64),
-    "solves_per_round": 50,
-    "train_steps_per_round": 1000,
-    "sobolev_weight": 1.0,
-    "value_cap": 1500.0,
-    "grad_label_max": 10.0,
-    "renormalize": True,
-    "refit_steps": 0,
-    "cl_trust_region": "none",
-    "cl_uniform_solves": 1000,
-    "cl_warmup_rounds": 0,
-    "cl_collect_refit": False,
-    "cl_selection": "random",
-    "cl_episodes": 20,
-    "cl_jit": False,
-    "cl_keep_best": True,
-    "ensemble_pessimism": 0.0,
-    # inert without a final refit (refit_steps 0, no candidates); as the benchmark's settings
-    "refit_ensemble": 1,
-    "select_finalists": 4,
-    "select_final_episodes": 300,
-}
-"""The glider's measured best :class:`~seagul_learn.training.TrainConfig` settings
-(``benchmarks/bench_closed_loop.py``'s shipped method with the glider's changes; a test keeps the two equal)."""
-
 
 def glider_profile(p: GliderParams, Qf: np.ndarray) -> TaskProfile:
     """The glider's :class:`TaskProfile` (docs/reference/spec.md §4.6): validation set, perch rule, TVLQR weights,
-    presets, ..."""
-    return TaskProfile(
+    MPC defaults, ..."""
+    # Training recipes and experiment presets: seagul_learn/recipes/glider.yml
+    profile = TaskProfile(
         solver=SOLVER_DEFAULTS,
         # 6 x 6 x 6 over (x, z, dx), other states at X0's centre (0) + 250 uniform draws.
         validation=ValidationSpec(grid_coords=(0, 1, 4), grid_points=6, num_random=250),
@@ -147,8 +77,6 @@ def glider_profile(p: GliderParams, Qf: np.ndarray) -> TaskProfile:
         # TVLQR tracks with the terminal weights: the running cost only penalises the input (no state feedback).
         lqr_Q=Qf,
         lqr_R=0.01 * np.eye(1),
-        presets=PRESETS,
-        train_recipe=TRAIN_RECIPE,
         env_id="SeagulGlider-v0",
         mpc_horizon=max(1, round(0.25 / p.control_period)),  # paper §6: about 250 ms
         # The final phase's exact perch (x = z = 0 at the end, fixed 25 ms steps) was out of reach on every final
@@ -168,6 +96,7 @@ def glider_profile(p: GliderParams, Qf: np.ndarray) -> TaskProfile:
             caption="Glider trajectories (Fig. 3)",
         ),
     )
+    return with_recipe_book(profile, "glider")
 
 
 @dataclass(frozen=True)

@@ -32,15 +32,16 @@ if TYPE_CHECKING:
 VALIDATION_SEED = 20210718
 """Seed of the uniform draws of every validation set: one set for all training seeds (docs/reference/spec.md §12.1)."""
 
-SMOKE_TRAIN_OVERRIDES: tuple[tuple[str, Any], ...] = (
-    ("cl_jit", False),
-    ("cl_episodes", 1),
-    ("cl_uniform_solves", 0),
-    ("cl_uniform_fraction", 0.5),
-    ("cl_tail_stride", 5),
-)
-"""TrainConfig overrides of every ``smoke`` preset: the closed-loop method shrunk to seconds (one interpreted episode
-per round, half of each round's solves uniform, tails of multiples of 5 intervals only: few optimizers)."""
+PLAN_SOLVERS = ("ipopt", "ipopt_fast", "fatrop")
+"""Solvers an attempt ``"solver:guess"`` of :attr:`SolverDefaults.plan` may name (``seagul_learn.trajopt``)."""
+PLAN_GUESSES = ("line", "goal", "hold", "kinematic")
+"""Initial guesses an attempt, or :attr:`SolverDefaults.multi_start_guesses`, may name."""
+MULTI_START = ("never", "on_suspect", "always")
+"""Values of :attr:`SolverDefaults.multi_start`."""
+TRUST_REGIONS = ("lqr", "box", "none")
+"""Values of :attr:`TaskProfile.mpc_trust_region`."""
+HEATMAP_METRICS = ("final_distance", "cost")
+"""Values of :attr:`TaskProfile.heatmap_metric`."""
 
 
 @dataclass(frozen=True)
@@ -67,6 +68,27 @@ class SolverDefaults:
     unavoidable, from the states a planner visits (the glider's perch), the hard tail is infeasible there and
     teaches nothing; the soft one gives a large, graded value. Choose it above the bounds' multipliers on the data
     (then the soft value equals the hard one wherever the bounds can be met)."""
+
+    def __post_init__(self) -> None:
+        if self.plan is not None:
+            object.__setattr__(self, "plan", tuple(self.plan))
+            if not self.plan:
+                raise ValueError("SolverDefaults.plan must name at least one attempt 'solver:guess' (or be None)")
+            for attempt in self.plan:
+                solver, _, guess = str(attempt).partition(":")
+                if solver not in PLAN_SOLVERS or guess not in PLAN_GUESSES:
+                    raise ValueError(
+                        f"SolverDefaults.plan: attempt {attempt!r} must be 'solver:guess' with a solver of "
+                        f"{list(PLAN_SOLVERS)} and a guess of {list(PLAN_GUESSES)}"
+                    )
+        if self.multi_start not in MULTI_START:
+            raise ValueError(f"SolverDefaults.multi_start must be one of {list(MULTI_START)}, got {self.multi_start!r}")
+        object.__setattr__(self, "multi_start_guesses", tuple(self.multi_start_guesses))
+        bad = [g for g in self.multi_start_guesses if g not in PLAN_GUESSES]
+        if bad:
+            raise ValueError(
+                f"SolverDefaults.multi_start_guesses: unknown guesses {bad}; choose from {list(PLAN_GUESSES)}"
+            )
 
     def config_defaults(self) -> dict[str, Any]:
         """The defaults as :class:`~seagul_learn.trajopt.TrajOptConfig` field values (``plan`` only when set)."""
@@ -234,48 +256,69 @@ class TrajectoryPlot:
     """Report caption of the figure."""
 
 
-def _default_presets() -> dict[str, dict[str, Any]]:
-    return {
-        "smoke": {
-            "seeds": 2,
-            "budget": 4,
-            "solves_per_round": 2,
-            "train_steps_per_round": 20,
-            "grid_points": 2,
-            "reference_grid_points": 1,
-            "mpc_horizon": 3,
-            "budgets": (2, 4),
-            "train_overrides": SMOKE_TRAIN_OVERRIDES,
-            "query_samples": 2,
-            "query_tail_stride": 10,
-        },
-        "quick": {
-            "seeds": 3,
-            "budget": 60,
-            "solves_per_round": 10,
-            "train_steps_per_round": 500,
-            "grid_points": 8,
-            "reference_grid_points": 4,
-            "budgets": (30, 60),
-            "query_samples": 10,
-        },
-        "paper": {
-            "seeds": 10,
-            "budget": 100,
-            "solves_per_round": 10,
-            "train_steps_per_round": 500,
-            "grid_points": 20,
-            "reference_grid_points": 10,
-            "budgets": (20, 50, 100),
-            "query_samples": 50,
-        },
-    }
+_MOVED = {
+    "presets": "seagul_learn.recipes.preset(task, name) (seagul_learn/recipes/<task>.yml)",
+    "train_recipe": "seagul_learn.recipes.recipe(task) / TrainConfig.recipe(task) (seagul_learn/recipes/<task>.yml)",
+}
 
 
-DEFAULT_PRESETS: Mapping[str, Mapping[str, Any]] = _default_presets()
-"""The presets of a new task: ``smoke`` (checks the pipeline in seconds), ``quick`` and ``paper`` (the paper's
-schedule: 100 solves, 10 per 500 training steps, 10 seeds, a 20 x 20 grid). Without ``mpc_horizon`` a preset uses
-the task's default horizon (:meth:`TaskProfile.default_horizon`)."""
+class _MovedToRecipes:
+    """A deprecated :class:`TaskProfile` field whose data moved to ``seagul_learn/recipes/*.yml``.
+
+    Given (``TaskProfile(presets=...)`` in a task of your own) it still counts, with a ``DeprecationWarning``: it is
+    the task's presets or default recipe, and part of the fingerprint. Not given, reading it warns and returns the
+    recipe file's data in the form the field had (flat TrainConfig names), for code that still reads it."""
+
+    def __set_name__(self, owner: type, name: str) -> None:
+        self.name = name
+        self.private = f"_given_{name}"
+
+    def __get__(self, obj: Any, objtype: type | None = None) -> Any:
+        if obj is None:
+            return None  # the dataclass default: not given
+        given = obj.__dict__.get(self.private)
+        if given is not None:
+            return given
+        import warnings
+
+        warnings.warn(
+            f"TaskProfile.{self.name} is deprecated (the data moved out of the task profile); use {_MOVED[self.name]}",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        from seagul_learn.recipes import legacy_profile_data  # the deprecated path only
+
+        return legacy_profile_data(obj.__dict__.get("_recipe_book", "default"), self.name)
+
+    def __set__(self, obj: Any, value: Any) -> None:
+        if value is None or isinstance(value, _MovedToRecipes):  # not given (the dataclass passes its default)
+            obj.__dict__.pop(self.private, None)
+            return
+        import warnings
+
+        warnings.warn(
+            f"TaskProfile({self.name}=...) is deprecated; put the task's {self.name} in a recipe file "
+            f"(seagul_learn.recipes.register) and use {_MOVED[self.name]}",
+            DeprecationWarning,
+            stacklevel=4,
+        )
+        if self.name == "presets":
+            value = {str(k): dict(v) for k, v in dict(value).items()}
+        else:
+            value = {str(k): v for k, v in dict(value).items()}
+        obj.__dict__[self.private] = value
+
+
+def _given_only(name: str) -> Any:
+    """Fingerprint rule of a deprecated field: it enters only when given (:meth:`Task.fingerprint`)."""
+    return lambda profile: profile.__dict__.get(f"_given_{name}") is None
+
+
+def with_recipe_book(profile: TaskProfile, book: str) -> TaskProfile:
+    """``profile`` marked as a built-in task's, whose recipe file is ``book`` (what the deprecated read of
+    ``presets`` / ``train_recipe`` returns)."""
+    object.__setattr__(profile, "_recipe_book", book)
+    return profile
 
 
 @dataclass(frozen=True, eq=False)
@@ -303,13 +346,19 @@ class TaskProfile:
     lqr_R: np.ndarray | None = None
     """Input weight of the LQR reference (None: ``extras["R"]`` or the identity at an equilibrium goal; ``0.01 I`` for
     the time-varying LQR)."""
-    presets: Mapping[str, Mapping[str, Any]] = field(default_factory=_default_presets)
-    """``seagul reproduce`` presets: name -> :class:`~seagul_learn.experiment.Preset` field values (plain data, so
-    the task module needs no import of ``seagul_learn``). Default :data:`DEFAULT_PRESETS`."""
-    train_recipe: Mapping[str, Any] = field(default_factory=dict)
-    """The measured best training settings of this task: :class:`~seagul_learn.training.TrainConfig` field -> value
-    (plain data, like :attr:`presets`), what ``TrainConfig.recipe(task)`` and ``seagul train`` start from. Empty:
-    the dataclass's defaults (the paper's settings)."""
+    presets: Mapping[str, Mapping[str, Any]] = field(
+        default=_MovedToRecipes(),  # type: ignore[arg-type]
+        metadata={"fingerprint_skip": _given_only("presets")},
+    )
+    """Deprecated: experiment presets are data in ``seagul_learn/recipes/<task>.yml``
+    (:func:`seagul_learn.recipes.preset`). Given, they are the task's presets (with a ``DeprecationWarning``)."""
+    train_recipe: Mapping[str, Any] = field(
+        default=_MovedToRecipes(),  # type: ignore[arg-type]
+        metadata={"fingerprint_skip": _given_only("train_recipe")},
+    )
+    """Deprecated: training recipes are data in ``seagul_learn/recipes/<task>.yml``
+    (:func:`seagul_learn.recipes.recipe`, :meth:`~seagul_learn.training.TrainConfig.recipe`). Given (flat
+    TrainConfig names), it is the task's ``default`` recipe (with a ``DeprecationWarning``)."""
     env_id: str | None = None
     """Gymnasium id of the system's own env (the built-ins'); None: ``seagul_envs.make_env`` gives a ``TaskEnv``.
     Episodes always run in ``make_env(task)``, which makes this id with the task itself (so a variant is simulated
@@ -337,8 +386,16 @@ class TaskProfile:
     """Record episodes' states and plot their paths (None: no trajectory figure)."""
 
     def __post_init__(self) -> None:
-        object.__setattr__(self, "presets", {str(k): dict(v) for k, v in dict(self.presets).items()})
-        object.__setattr__(self, "train_recipe", {str(k): v for k, v in dict(self.train_recipe).items()})
+        if self.mpc_trust_region not in TRUST_REGIONS:
+            raise ValueError(
+                f"TaskProfile.mpc_trust_region must be one of {list(TRUST_REGIONS)}, got {self.mpc_trust_region!r}"
+            )
+        if self.heatmap_metric not in HEATMAP_METRICS:
+            raise ValueError(
+                f"TaskProfile.heatmap_metric must be one of {list(HEATMAP_METRICS)}, got {self.heatmap_metric!r}"
+            )
+        if not isinstance(self.solver, SolverDefaults):
+            raise ValueError(f"TaskProfile.solver must be a SolverDefaults, got {type(self.solver).__name__}")
         for name in ("lqr_Q", "lqr_R"):
             value = getattr(self, name)
             if value is not None:
@@ -455,7 +512,26 @@ class TaskProfile:
         if self.trajectory_plot is not None:
             for i in self.trajectory_plot.axes:
                 index_ok("trajectory_plot.axes", i)
-        for name, fields_ in self.presets.items():
+        for name, fields_ in (self.__dict__.get("_given_presets") or {}).items():
             if not isinstance(fields_, dict):
                 out.append(f"profile.presets[{name!r}] must be a mapping of Preset fields")
         return out
+
+
+def __getattr__(name: str) -> Any:
+    """``DEFAULT_PRESETS`` and ``SMOKE_TRAIN_OVERRIDES``: deprecated, the data is in
+    ``seagul_learn/recipes/default.yml``."""
+    if name in ("DEFAULT_PRESETS", "SMOKE_TRAIN_OVERRIDES"):
+        import warnings
+
+        from seagul_learn.recipes import legacy_profile_data  # the deprecated path only
+
+        warnings.warn(
+            f"seagul_envs.tasks.profile.{name} is deprecated; use seagul_learn.recipes.preset(task, name) "
+            "(seagul_learn/recipes/default.yml)",
+            DeprecationWarning,
+            stacklevel=2,
+        )
+        presets = legacy_profile_data("default", "presets")
+        return presets if name == "DEFAULT_PRESETS" else presets["smoke"]["train_overrides"]
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
