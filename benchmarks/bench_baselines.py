@@ -22,11 +22,12 @@ Rows per task (``kind``):
 Every row is evaluated on the task's evaluation grid (acrobot 20 x 20 over ``(th1, th2)`` at rest, glider 6 x 6)
 and on the 100 held-out X0 starts (seed 20211231); the full horizon on the grid only, its held-out success from the
 committed closed-loop benchmark's evaluation of the same starts (it takes 40 ms a step on the acrobot, 0.6 s on the
-glider). ``success_at`` re-judges
-the grid episodes at other tolerances: the acrobot's rule ``||x(T) - x*|| < tol``; the glider's perch rule with every
-tolerance scaled by ``tol / 0.05`` (position within ``tol`` m, speeds within ``40 tol`` m/s: at 0.05, the task's
-rule). ``tolerance_reached`` is, per grid episode, the smallest such ``tol`` it meets (the acrobot's final distance;
-infinite for a glider crash): the CDF figure draws it. Step time is each controller's own computation per step
+glider). ``success_at`` re-judges the grid episodes at other tolerances: the acrobot's rule
+``||x(T) - x*|| < tol``; the glider's perch rule with every tolerance scaled by ``tol / 0.05`` (position within
+``tol`` m, speeds within ``40 tol`` m/s: at 0.05, the task's rule). ``tolerance_reached`` is, per grid episode, the
+smallest such ``tol`` it meets (the acrobot's final distance; infinite for a glider crash): the CDF figure draws it.
+Both are library functions (:func:`seagul_control.evaluation.success_at`,
+:func:`seagul_control.evaluation.tolerance_reached`). Step time is each controller's own computation per step
 (``predict``), measured in this process on ``--latency-starts`` grid starts, one controller after the other, so the
 ratios are side by side; the machine record has the load.
 
@@ -54,21 +55,23 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._common import machine  # noqa: E402
+from benchmarks.bench_controllers import _Timed, learned_spec, training_env_steps  # noqa: E402
 from seagul_control.evaluation import (  # noqa: E402
+    SUCCESS_TOLERANCES,
     PolicySpec,
     build_policy,
     evaluate,
     heldout_starts,
     run_policy_episode,
     start_grid,
+    success_at,
+    tolerance_reached,
 )
-from seagul_envs import SuccessRule, make_task  # noqa: E402
+from seagul_control.io import atomic_write_json  # noqa: E402
+from seagul_envs import make_task  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 KINDS = ("learned-mpc", "quadratic-mpc", "do-mpc", "full-horizon", "lqr", "ppo", "sac")
-TOLERANCES = ("0.05", "0.1", "0.2", "0.5")
-#: The tolerance the task's own rule uses (acrobot: its distance; glider: its position tolerance).
-REFERENCE_TOL = 0.05
 #: Where the committed closed-loop benchmark keeps the full horizon's held-out evaluation of the same starts.
 STORED_FULL = {
     "acrobot": "closed_loop_b1000_rest/full-horizon.json",
@@ -91,26 +94,6 @@ class Row:
     extra: dict[str, Any] = field(default_factory=dict)
 
 
-# ------------------------------------------------------------------------------------------------ tolerances
-def tolerance_reached(task: Any, final_state: Any, terminated: bool) -> float:
-    """The smallest ``tol`` at which the episode meets the task's rule scaled by ``tol / 0.05`` (module docstring):
-    ``0.05 * SuccessRule.scale_needed``; infinite for an episode the rule fails outright (a glider crash)."""
-    rule = task.profile.success
-    if not isinstance(rule, SuccessRule):
-        raise ValueError(f"{task.name}: success_at needs a SuccessRule, got {type(rule).__name__}")
-    return REFERENCE_TOL * rule.scale_needed(task, final_state, terminated)
-
-
-def success_at(task: Any, episodes: list[dict[str, Any]]) -> dict[str, float]:
-    """Success rate at each of :data:`TOLERANCES`, by the task's rule scaled (``SuccessRule.scaled``)."""
-    rule = task.profile.success
-    out = {}
-    for tol in TOLERANCES:
-        scaled = rule.scaled(float(tol) / REFERENCE_TOL)
-        out[tol] = float(np.mean([scaled(task, e["final_state"], e["terminated"]) for e in episodes]))
-    return out
-
-
 # ------------------------------------------------------------------------------------------------ rows
 def shipped_block(task_name: str) -> dict[str, Any]:
     block = json.loads((RESULTS / "closed_loop.json").read_text())[task_name]
@@ -119,8 +102,6 @@ def shipped_block(task_name: str) -> dict[str, Any]:
 
 def rows_of(task_name: str, horizons: list[int], do_mpc_horizons: list[int], rl: dict[str, Any]) -> list[Row]:
     """Every row of a task (module docstring)."""
-    from benchmarks.bench_controllers import learned_spec, training_env_steps
-
     block = shipped_block(task_name)
     collection, selection = training_env_steps(task_name, block)
     rows = []
@@ -182,8 +163,6 @@ def _episode(result: Any) -> dict[str, Any]:
 
 def episodes_of(task: Any, row: Row, starts: np.ndarray, out: Path, workers: int) -> list[dict[str, Any]]:
     """The row's episodes from ``starts`` (stored in ``out`` for the same starts, else run and stored)."""
-    from seagul_control._io import atomic_write_text
-
     path = out / f"{row.spec.label}.json"  # type: ignore[union-attr]
     key = {"spec": repr(row.spec), "starts": np.round(starts, 12).tolist()}
     if path.is_file():
@@ -194,14 +173,12 @@ def episodes_of(task: Any, row: Row, starts: np.ndarray, out: Path, workers: int
     results = evaluate(task, [row.spec], starts, workers=workers, progress=False)  # type: ignore[list-item]
     episodes = [_episode(r) for r in results]
     out.mkdir(parents=True, exist_ok=True)
-    atomic_write_text(path, json.dumps({"key": key, "episodes": episodes, "wall_s": time.perf_counter() - t}))
+    atomic_write_json(path, {"key": key, "episodes": episodes, "wall_s": time.perf_counter() - t})
     return episodes
 
 
 def step_times(task: Any, spec: PolicySpec, starts: np.ndarray) -> dict[str, float]:
     """Median and p95 (ms) of the controller's computation per step over episodes from ``starts``."""
-    from benchmarks.bench_controllers import _Timed
-
     timed = _Timed(build_policy(task, spec))
     for x0 in starts:
         run_policy_episode(task, timed, x0)
@@ -260,7 +237,10 @@ def markdown(rows: list[dict[str, Any]]) -> str:
 
 
 def plot_cdf(task_name: str, rows: list[dict[str, Any]], path: Path) -> None:
-    """CDF of the tolerance reached per controller (acrobot: the final distance), one line per controller."""
+    """CDF of the tolerance reached per controller (acrobot: the final distance), one line per controller.
+
+    matplotlib is imported here, not at the top: only a run that writes ``--json`` draws (the module's one
+    function-level import besides the optional do-mpc check in :func:`main`)."""
     import matplotlib
 
     matplotlib.use("Agg")
@@ -275,7 +255,7 @@ def plot_cdf(task_name: str, rows: list[dict[str, Any]], path: Path) -> None:
         label = r["controller"]
         width = 2.2 if r["kind"] in ("full-horizon",) else 1.4
         ax.step(xs, ys, where="post", ls=styles.get(r["kind"], "-"), lw=width, label=label)
-    for tol in TOLERANCES:
+    for tol in SUCCESS_TOLERANCES:
         ax.axvline(float(tol), color="0.8", lw=0.8, zorder=0)
     ax.set_xscale("log")
     ax.set_xlim(1e-3, 20)
@@ -365,9 +345,7 @@ def main(argv: list[str] | None = None) -> int:
         result["machine"] = machine("torch", "stable_baselines3")
         result.pop("refreshed", None)
     if args.json is not None:
-        from seagul_control._io import atomic_write_text
-
-        atomic_write_text(args.json, json.dumps(result, indent=1))
+        atomic_write_json(args.json, result, indent=1)
     print(json.dumps({k: v for k, v in result.items()}))
     return 0
 

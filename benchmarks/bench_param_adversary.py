@@ -4,7 +4,7 @@ Usage::
 
     .venv/bin/python benchmarks/bench_param_adversary.py [--quick] [--tasks acrobot] [--seeds N] [--budget B]
         [--starts N] [--workers 2] [--out DIR] [--update FILE] [--closed-loop] [--model-reference]
-        [--report-from JSON]
+        [--report-from JSON] [--dry-run]
 
 Per task and seed (paired: the three runs of a seed share their pretraining solves, their pool of starts and, for
 the two runs over robots, the robots of those starts), at equal solves:
@@ -52,7 +52,7 @@ import argparse
 import json
 import sys
 import time
-from dataclasses import dataclass, field
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -61,11 +61,20 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
+from joblib import Parallel, delayed  # noqa: E402
+
 from benchmarks._common import machine  # noqa: E402
 from benchmarks.bench_closed_loop import FULL_TRAIN as CLOSED_LOOP_TRAIN  # noqa: E402
 from benchmarks.bench_closed_loop import _train_one, paired_test  # noqa: E402
 from seagul_control.evaluation import PolicySpec, default_horizon, evaluate, heldout_starts  # noqa: E402
 from seagul_envs import make_task  # noqa: E402
+from seagul_learn.dataset import training_arrays  # noqa: E402
+from seagul_learn.report import Section, Table, write_report  # noqa: E402
+from seagul_learn.solving import solver_key, trajopt_batch_solver  # noqa: E402
+from seagul_learn.training import TrainConfig, default_cache_dir, validation_dataset  # noqa: E402
+from seagul_learn.training import evaluate as validation_errors  # noqa: E402
+from seagul_learn.trajopt import TrajectoryOptimizer  # noqa: E402
+from seagul_learn.value_network import ValueNetwork  # noqa: E402
 
 METHODS: dict[str, dict[str, Any]] = {
     "adversarial": {"sampler": "adversarial", "model_params": True},
@@ -157,8 +166,6 @@ class ParamBenchConfig:
 
 def train_all(bench: ParamBenchConfig, out: Path, workers: int) -> dict[tuple[str, int], Path]:
     """One run per (method, seed), in parallel processes."""
-    from joblib import Parallel, delayed
-
     jobs = {}
     for seed in range(bench.seeds):
         for method, settings in bench.methods().items():
@@ -170,11 +177,6 @@ def train_all(bench: ParamBenchConfig, out: Path, workers: int) -> dict[tuple[st
 
 def robust_validation(task_name: str, run: Path) -> dict[str, float]:
     """Validation MSEs of a run's network on the validation set over robots (the nominal network ignores theta)."""
-    from seagul_learn.dataset import training_arrays
-    from seagul_learn.solving import solver_key, trajopt_batch_solver
-    from seagul_learn.training import TrainConfig, default_cache_dir, evaluate, validation_dataset
-    from seagul_learn.value_network import ValueNetwork
-
     task = make_task(task_name)
     config = TrainConfig.from_run(run)
     records = validation_dataset(
@@ -185,7 +187,9 @@ def robust_validation(task_name: str, run: Path) -> dict[str, float]:
         model_params=True,
     )
     arrays = training_arrays(records, task.nx)
-    mse_initial, mse_all = evaluate(ValueNetwork.load(run / "network.pt"), arrays)  # a nominal network ignores theta
+    mse_initial, mse_all = validation_errors(
+        ValueNetwork.load(run / "network.pt"), arrays
+    )  # a nominal network ignores theta
     return {"mse_initial": mse_initial, "mse_all_knots": mse_all}
 
 
@@ -229,8 +233,6 @@ def closed_loop(
 def grad_theta_fd_error(task_name: str, points: int) -> float:
     """Max over ``points`` random ``(x, theta)`` and parameters of ``|dV/dtheta - FD| / scale`` (central FD of
     re-solved values at ``theta +- 1e-4 |theta_i|``; scale ``max(|FD_i|, 1e-3 max|FD|)``)."""
-    from seagul_learn.trajopt import TrajectoryOptimizer
-
     task = make_task(task_name)
     space = task.parameters
     assert space is not None
@@ -346,7 +348,7 @@ def run_task(bench: ParamBenchConfig, out: Path, workers: int) -> dict[str, Any]
 def plot(block: dict[str, Any], path: Path, task_name: str) -> None:
     """Two panels: robust closed-loop success per controller (bars: medians over seeds, dots: seeds) and the
     validation error over robots per method (seeds as dots)."""
-    import matplotlib
+    import matplotlib  # the only import made here: the backend is chosen before pyplot, by the one function that draws
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -404,8 +406,6 @@ def _pct(value: float) -> str:
 def write_bench_report(result: dict[str, Any], out: Path) -> Path:
     """``report.md``/``report.html`` in ``out``: per task the figure, closed-loop success per controller and seed,
     validation over ``X0 x Theta``, the seed-paired tests and the dual-gradient check."""
-    from seagul_learn.report import Section, Table, write_report
-
     sections = []
     for task, block in result.items():
         if task == "machine":
@@ -468,6 +468,17 @@ def write_bench_report(result: dict[str, Any], out: Path) -> Path:
     return write_report(out, "Robust control over robots (bench_param_adversary)", sections)
 
 
+def configured(task: str, args: argparse.Namespace) -> ParamBenchConfig:
+    """The run's settings for ``task``: :meth:`ParamBenchConfig.for_task` with the command line's overrides."""
+    bench = ParamBenchConfig.for_task(task, args.quick)
+    for name in ("seeds", "budget", "starts"):
+        if getattr(args, name) is not None:
+            setattr(bench, name, int(getattr(args, name)))
+    bench.model_reference = bool(args.model_reference)
+    bench.closed_loop = bool(args.closed_loop)
+    return bench
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="a minutes-long check of the pipeline")
@@ -484,20 +495,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument(
         "--report-from", default=None, metavar="JSON", help="only write the report of a stored result into --out"
     )
+    parser.add_argument(
+        "--dry-run", action="store_true", help="print each task's settings and trained methods as JSON; run nothing"
+    )
     args = parser.parse_args(argv)
     out = Path(args.out or f"/tmp/seagul-bench-param-adversary{'-quick' if args.quick else ''}")
     if args.report_from:
         print(write_bench_report(json.loads(Path(args.report_from).read_text()), out))
         return 0
+    benches = [configured(task, args) for task in args.tasks.split(",")]
+    if args.dry_run:
+        print(json.dumps({b.task: {**asdict(b), "methods": b.methods()} for b in benches}, default=str))
+        return 0
     result: dict[str, Any] = {}
     t0 = time.perf_counter()
-    for task in args.tasks.split(","):
-        bench = ParamBenchConfig.for_task(task, args.quick)
-        for name in ("seeds", "budget", "starts"):
-            if getattr(args, name) is not None:
-                setattr(bench, name, int(getattr(args, name)))
-        bench.model_reference = bool(args.model_reference)
-        bench.closed_loop = bool(args.closed_loop)
+    for bench in benches:
+        task = bench.task
         result[task] = run_task(bench, out / task, args.workers)
         if args.figure and len(result) == 1:
             plot(result[task], Path(args.figure), task)

@@ -36,7 +36,7 @@ from __future__ import annotations
 import importlib
 import threading
 import warnings
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -56,6 +56,7 @@ from seagul_envs.tasks import BUILTIN_TASKS, available_tasks, file_task_modules,
 from seagul_envs.tasks.acrobot import SUCCESS_DISTANCE as ACROBOT_SUCCESS_DISTANCE
 from seagul_envs.tasks.base import Task
 from seagul_envs.tasks.glider import PERCH_POSITION_TOL, PERCH_SPEED_TOL
+from seagul_envs.tasks.profile import SuccessRule
 
 __all__ = [
     "ACROBOT_SUCCESS_DISTANCE",
@@ -63,6 +64,8 @@ __all__ = [
     "PERCH_POSITION_TOL",
     "PERCH_SPEED_TOL",
     "POLICY_KINDS",
+    "REFERENCE_TOLERANCE",
+    "SUCCESS_TOLERANCES",
     "EpisodeResult",
     "PolicyKind",
     "PolicySpec",
@@ -78,6 +81,8 @@ __all__ = [
     "run_episode",
     "run_policy_episode",
     "start_grid",
+    "success_at",
+    "tolerance_reached",
 ]
 POLICY_KINDS = ("mpc", "full", "lqr", "sb3", "do-mpc")
 """The built-in policy kinds (:func:`policy_kinds` also lists those registered since)."""
@@ -509,6 +514,49 @@ def is_success(task: Task, x: np.ndarray, terminated: bool = False) -> bool:
     """The task's success rule (``task.profile.success``) on an episode's final state. Acrobot:
     ``||x - x*|| < 0.05``; glider: perched (position and speed tolerances) without crashing."""
     return task.profile.is_success(task, x, terminated)
+
+
+#: The tolerances :func:`success_at` re-judges episodes at (keys of its result; the committed baselines table's).
+SUCCESS_TOLERANCES = ("0.05", "0.1", "0.2", "0.5")
+#: The tolerance the built-in rules use (acrobot: its distance; glider: its position tolerance, speeds 40 times it).
+REFERENCE_TOLERANCE = 0.05
+
+
+def tolerance_reached(task: Task, final_state: Any, terminated: bool = False) -> float:
+    """The smallest ``tol`` at which an episode's final state meets the task's success rule with every tolerance
+    scaled by ``tol / 0.05`` (:data:`REFERENCE_TOLERANCE`): ``0.05 * SuccessRule.scale_needed``. For the acrobot it
+    is the final distance ``||x(T) - x*||``; for the glider the perch position tolerance met (m, speeds within 40
+    times it); infinite for an episode the rule fails outright (a glider crash).
+
+    Raises:
+        ValueError: the task's rule is not a :class:`~seagul_envs.tasks.profile.SuccessRule` (a custom callable has
+            no tolerances to scale).
+    """
+    rule = task.profile.success
+    if not isinstance(rule, SuccessRule):
+        raise ValueError(f"{task.name}: tolerances need a SuccessRule, got {type(rule).__name__}")
+    return REFERENCE_TOLERANCE * rule.scale_needed(task, final_state, terminated)
+
+
+def success_at(
+    task: Task, episodes: Sequence[EpisodeResult | Mapping[str, Any]], tolerances: Sequence[str] = SUCCESS_TOLERANCES
+) -> dict[str, float]:
+    """Success rate of ``episodes`` (:class:`EpisodeResult` or dicts with ``"final_state"`` and ``"terminated"``)
+    at each tolerance (``"0.1"`` -> the task's rule scaled by ``0.1 / 0.05``, :meth:`SuccessRule.scaled
+    <seagul_envs.tasks.profile.SuccessRule.scaled>`): how the comparison of controllers changes when the goal is
+    looser than the paper's."""
+    rule = task.profile.success
+    if not isinstance(rule, SuccessRule):
+        raise ValueError(f"{task.name}: tolerances need a SuccessRule, got {type(rule).__name__}")
+    finals = [
+        (e.final_state, e.terminated) if isinstance(e, EpisodeResult) else (e["final_state"], e["terminated"])
+        for e in episodes
+    ]
+    out = {}
+    for tol in tolerances:
+        scaled = rule.scaled(float(tol) / REFERENCE_TOLERANCE)
+        out[tol] = float(np.mean([scaled(task, x, bool(terminated)) for x, terminated in finals]))
+    return out
 
 
 def _run_chunk(

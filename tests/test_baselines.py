@@ -188,12 +188,9 @@ def test_success_rule_scaled_and_the_scale_a_final_state_needs():
         rule.scaled(0.0)
 
 
-def test_bench_success_at_rescales_the_rule_and_the_tolerance_reached_is_its_threshold():
-    import sys
-    from pathlib import Path
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
-    from benchmarks.bench_baselines import success_at, tolerance_reached
+def test_success_at_rescales_the_rule_and_the_tolerance_reached_is_its_threshold():
+    """The baselines table's tolerances (``seagul_control.evaluation``; the benchmark imports them)."""
+    from seagul_control.evaluation import EpisodeResult, success_at, tolerance_reached
     from seagul_envs import make_task
 
     task = make_task("acrobot")
@@ -201,8 +198,12 @@ def test_bench_success_at_rescales_the_rule_and_the_tolerance_reached_is_its_thr
         {"final_state": list(task.goal + np.array([d, 0, 0, 0])), "terminated": False} for d in (0.01, 0.07, 0.3, 2.0)
     ]
     assert success_at(task, episodes) == {"0.05": 0.25, "0.1": 0.5, "0.2": 0.5, "0.5": 0.75}
+    results = [EpisodeResult("x", i, [], e["final_state"], 0.0, 0.0, False, False, 50) for i, e in enumerate(episodes)]
+    assert success_at(task, results, ("0.5", "5")) == {"0.5": 0.75, "5": 1.0}  # results as well as stored dicts
     reached = [tolerance_reached(task, e["final_state"], False) for e in episodes]
     assert reached == pytest.approx([0.01, 0.07, 0.3, 2.0])
+    glider = make_task("glider")
+    assert tolerance_reached(glider, glider.goal, terminated=True) == float("inf")  # a crash meets no tolerance
 
 
 def test_a_larger_budget_extends_a_completed_run_from_its_final_model(tmp_path):

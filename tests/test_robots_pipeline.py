@@ -330,27 +330,29 @@ def test_an_ensemble_over_robots_measures_its_spread_at_the_robots_it_is_given()
     assert not np.allclose(spread, ens.spread(x, tau, np.tile(TASK.theta, (4, 1))))
 
 
-def test_param_bench_report_renders_the_committed_result(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+def test_param_bench_report_renders_the_committed_result(tmp_path: Path) -> None:
     """``bench_param_adversary --report-from``: the committed five-seed result as a report, one row per controller
-    with its per-seed rates and their median, and the closed-loop sampler's settings on the benchmark config."""
-    import importlib
+    with its per-seed rates and their median; ``--dry-run``: the closed-loop sampler's settings on the benchmark
+    config. The script runs as a user runs it, in its own process."""
     import json
+    import subprocess
+    import sys
 
     root = Path(__file__).resolve().parents[1]
-    monkeypatch.syspath_prepend(str(root))
-    bench = importlib.import_module("benchmarks.bench_param_adversary")
-    config = bench.ParamBenchConfig.for_task("acrobot", quick=False)
-    assert "closed-loop" not in config.methods()
-    config.closed_loop = True
-    settings = config.methods()["closed-loop"]
-    assert settings["cl_uniform_solves"] == config.budget // 3 and settings["value_cap"] == 50.0
+    script = str(root / "benchmarks" / "bench_param_adversary.py")
+
+    def run(*args: str) -> str:
+        done = subprocess.run([sys.executable, script, *args], capture_output=True, text=True, timeout=600)
+        assert done.returncode == 0, done.stderr
+        return done.stdout
+
+    plain = json.loads(run("--dry-run").splitlines()[-1])["acrobot"]
+    assert "closed-loop" not in plain["methods"] and set(plain["methods"]) == {"adversarial", "uniform", "nominal"}
+    config = json.loads(run("--dry-run", "--closed-loop").splitlines()[-1])["acrobot"]
+    settings = config["methods"]["closed-loop"]
+    assert settings["cl_uniform_solves"] == config["budget"] // 3 == 100 and settings["value_cap"] == 50.0
     stored = json.loads((root / "benchmarks" / "results" / "param_adversary.json").read_text())
-    assert (
-        bench.main(
-            ["--report-from", str(root / "benchmarks" / "results" / "param_adversary.json"), "--out", str(tmp_path)]
-        )
-        == 0
-    )
+    run("--report-from", str(root / "benchmarks" / "results" / "param_adversary.json"), "--out", str(tmp_path))
     text = (tmp_path / "report.md").read_text()
     block = stored["acrobot"]
     rates = [r["success_rate"] for r in block["per_seed"]["closed-loop"]]
