@@ -12,10 +12,13 @@ config's ``algo_overrides`` and ``view_overrides`` over it. :func:`train_sb3` tr
   success by the task's rule, median final distance and the median miss of the rule in units of its tolerances.
 * **Checkpoint selection**: the checkpoint with the highest validation success (ties: the lower median miss) is
   kept in ``best/`` (``model.zip``, ``vecnormalize.pkl``, ``view.json``); the final model in the run directory.
-  A saved model runs on the raw env through :class:`seagul_control.evaluation.SB3Policy`, which applies the view
+  A saved model runs on the raw env through :class:`seagul_learn.policies.SB3Policy`, which applies the view
   and the statistics stored beside it.
 
 Reports judge every policy by the task's own cost and success rule, never by the learner's reward.
+
+Imports are at module level except stable-baselines3 and torch, imported by the functions that train or load a
+model: this module's settings, views and statistics are used without them (``seagul_learn.commands``, reports).
 """
 
 from __future__ import annotations
@@ -30,7 +33,14 @@ from functools import partial
 from pathlib import Path
 from typing import Any
 
+import gymnasium as gym
 import numpy as np
+import yaml  # type: ignore[import-untyped]
+
+import seagul_envs  # noqa: F401  (registers the envs)
+from seagul_control.evaluation import run_policy_episode
+from seagul_control.io import atomic_write_json
+from seagul_envs.wrappers import LearnerView, learner_env
 
 ALGOS = ("PPO", "SAC")
 
@@ -46,8 +56,6 @@ _RUN_KEYS = ("n_timesteps", "n_envs", "normalize", "eval_every", "policy", "lear
 
 def tuned(algo: str, env_id: str) -> dict[str, Any]:
     """The tuned entry of ``env_id`` in ``hyperparams/<algo>.yml`` (its ``default`` entry for an id it lacks)."""
-    import yaml  # type: ignore[import-untyped]
-
     if algo not in ALGOS:
         raise ValueError(f"unknown algo {algo!r}; choose one of {list(ALGOS)}")
     path = HYPERPARAMS_DIR / f"{algo.lower()}.yml"
@@ -110,10 +118,6 @@ class SB3Config:
 
 def task_of_env(env_id: str) -> Any:
     """The Task an env id simulates (its ``unwrapped.task``)."""
-    import gymnasium as gym
-
-    import seagul_envs  # noqa: F401  (registers the envs)
-
     env = gym.make(env_id)
     try:
         return env.unwrapped.task  # type: ignore[attr-defined]
@@ -129,11 +133,6 @@ def validation_starts(task: Any, n: int = 50) -> np.ndarray:
 
 def learner_view(env_id: str, settings: dict[str, Any]) -> Any:
     """The :class:`~seagul_envs.wrappers.LearnerView` of ``env_id`` with ``settings`` (a tuned ``learner_view``)."""
-    import gymnasium as gym
-
-    import seagul_envs  # noqa: F401
-    from seagul_envs.wrappers import LearnerView
-
     env = gym.make(env_id)
     try:
         return LearnerView.for_env(env, **settings, extra={"env_id": env_id})
@@ -169,8 +168,6 @@ def episode_stats(task: Any, policy: Any, starts: np.ndarray, env_id: str | None
     """Success rate (the task's rule), mean return (minus the task's trajectory cost), mean and median final
     distance ``||x(T) - x*||`` and mean and median miss of the success rule (``SuccessRule.violation`` of the final
     state in units of its tolerances; 0 where it succeeds) of ``policy`` from ``starts``."""
-    from seagul_control.evaluation import run_policy_episode
-
     results = [run_policy_episode(task, policy, x0, index=i, env_id=env_id)[0] for i, x0 in enumerate(starts)]
     rule = task.profile.success
     misses = [float(rule.violation(task, np.asarray(r.final_state))) for r in results]
@@ -190,8 +187,6 @@ def training_env(config: SB3Config, view: Any) -> Any:
     returns in the task's units), seen through ``learner_env(view)``, then ``VecNormalize`` on observations."""
     from stable_baselines3.common.env_util import make_vec_env
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
-
-    from seagul_envs.wrappers import learner_env
 
     settings = config.resolved()
     venv: Any = make_vec_env(
@@ -237,7 +232,7 @@ def _better(row: dict[str, Any], best: dict[str, Any] | None) -> bool:
 
 def save_policy(model: Any, venv: Any, view: Any, out: Path) -> None:
     """``model.zip``, ``vecnormalize.pkl`` (if any) and ``view.json`` into ``out``: what
-    :class:`seagul_control.evaluation.SB3Policy` loads."""
+    :class:`seagul_learn.policies.SB3Policy` loads."""
     out.mkdir(parents=True, exist_ok=True)
     model.save(out / "model.zip")
     if venv is not None:
@@ -380,9 +375,7 @@ def _load_model(config: SB3Config, venv: Any, out: Path) -> Any:
 
 
 def _write_json(path: Path, payload: Any) -> None:
-    from seagul_control._io import atomic_write_text
-
-    atomic_write_text(path, json.dumps(payload, indent=1))
+    atomic_write_json(path, payload, indent=1)
 
 
 def config_from_args(argv: list[str] | None = None, description: str = "") -> tuple[SB3Config, Path]:
