@@ -44,7 +44,18 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._common import machine  # noqa: E402
-from seagul_learn.baselines import ALGOS, SB3Config, train_sb3  # noqa: E402
+from seagul_control.evaluation import heldout_starts, start_grid  # noqa: E402
+from seagul_control.io import atomic_write_json, atomic_write_text  # noqa: E402
+from seagul_learn.baselines import (  # noqa: E402
+    ALGOS,
+    SB3Config,
+    episode_stats,
+    extendable_run,
+    smoke_config,
+    task_of_env,
+    train_sb3,
+)
+from seagul_learn.policies import SB3Policy  # noqa: E402
 
 #: Environment steps per task and algorithm of the committed run (see the docs' results page for why not more).
 FULL_STEPS: dict[str, dict[str, int]] = {
@@ -70,8 +81,6 @@ def config_of(task: str, algo: str, seed: int, steps: int, quick: bool) -> SB3Co
     """The run of ``algo`` on ``task``'s env with ``seed`` and ``steps`` (``quick``: tiny networks and batches)."""
     config = SB3Config(algo=algo, env_id=ENV_IDS[task], total_timesteps=steps, seed=seed)
     if quick:
-        from seagul_learn.baselines import smoke_config
-
         config = smoke_config(config)
         config = SB3Config(**{**config.to_dict(), "total_timesteps": steps, "eval_every": max(steps // 2, 1)})
     return config
@@ -79,9 +88,6 @@ def config_of(task: str, algo: str, seed: int, steps: int, quick: bool) -> SB3Co
 
 def run_seed(config: SB3Config, out: Path, n_heldout: int = 100) -> dict[str, Any]:
     """Train (or reuse) one run, then evaluate its selected model on the grid and the held-out starts."""
-    from seagul_control.evaluation import SB3Policy, heldout_starts, start_grid
-    from seagul_learn.baselines import episode_stats, extendable_run, task_of_env
-
     done = out / "result.json"
     if done.is_file():
         stored = json.loads(done.read_text())
@@ -99,9 +105,7 @@ def run_seed(config: SB3Config, out: Path, n_heldout: int = 100) -> dict[str, An
         "grid": episode_stats(task, policy, grid),
         "heldout": episode_stats(task, policy, heldout_starts(task, n_heldout)),
     }
-    from seagul_control._io import atomic_write_text
-
-    atomic_write_text(done, json.dumps(result, indent=1))
+    atomic_write_json(done, result, indent=1)
     return result
 
 
@@ -143,7 +147,7 @@ def summarise(task: str, algo: str, runs: list[dict[str, Any]], ship: bool) -> d
 
 def plot(task: str, block: dict[str, Any], path: Path) -> None:
     """Validation success and median miss against environment steps, median and range over seeds."""
-    import matplotlib
+    import matplotlib  # here, not at the top: only a run that writes --json draws
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
@@ -204,11 +208,9 @@ def sweep(args: argparse.Namespace) -> int:
             flush=True,
         )
     if args.json is not None:
-        from seagul_control._io import atomic_write_text
-
         stored = json.loads(args.json.read_text()) if args.json.is_file() else {}
         stored.setdefault("acrobot", {})["sweep"] = rows
-        atomic_write_text(args.json, json.dumps(stored, indent=1))
+        atomic_write_json(args.json, stored, indent=1)
     print(json.dumps(rows))
     return 0
 
@@ -285,8 +287,6 @@ def main(argv: list[str] | None = None) -> int:
     result["machine"] = machine("torch", "stable_baselines3", "gymnasium")
     text = json.dumps(result, indent=1)
     if args.json is not None:
-        from seagul_control._io import atomic_write_text
-
         atomic_write_text(args.json, text)
     print(json.dumps(result))
     return 0
