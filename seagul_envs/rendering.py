@@ -7,10 +7,15 @@ both acrobots therefore share this drawing, which also keeps their pictures iden
 ``human`` mode shows the same frames in a matplotlib window when an interactive backend is available (a display
 exists); on a headless machine the frames are still drawn but nothing is shown, so ``render_mode="human"`` never
 crashes an experiment that was started without a display.
+
+Imports: module level, except matplotlib, imported only when a ``human`` window is opened (the envs import this
+module, and ``rgb_array`` frames and headless runs never need matplotlib's start-up cost).
 """
 
 from __future__ import annotations
 
+import os
+import sys
 from collections.abc import Sequence
 from typing import Any
 
@@ -183,9 +188,6 @@ class HumanViewer:
 
 def _interactive_backend() -> bool:
     """True when matplotlib can open a window (a display and an interactive backend)."""
-    import os
-    import sys
-
     if sys.platform.startswith("linux") and not (os.environ.get("DISPLAY") or os.environ.get("WAYLAND_DISPLAY")):
         return False
     try:

@@ -27,7 +27,7 @@ learner. :class:`LearnerView` declares the standard preparation, and :func:`lear
 
 :class:`LearnerView` is a frozen dataclass stored as ``view.json`` beside a trained model; :meth:`LearnerView.observe`
 and :meth:`LearnerView.action` are the same maps as pure functions, so a saved policy runs on the raw env
-(``seagul_control.evaluation.SB3Policy``).
+(``seagul_learn.policies.SB3Policy``).
 """
 
 from __future__ import annotations

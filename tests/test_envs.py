@@ -416,3 +416,38 @@ def test_a_renamed_variant_of_a_builtin_system_gets_its_env_by_parameter_class()
 def test_step_before_reset_raises(env_id: str) -> None:
     with pytest.raises(gym.error.ResetNeeded):
         _make(env_id).unwrapped.step(np.zeros(1, np.float32))
+
+
+# ------------------------------------------------------------------------------------------------ the one registry
+def test_one_registry_module_and_no_env_module_imports_it() -> None:
+    """``seagul_envs.registration`` holds the ids, ``register_task`` and the task -> env lookup (``make_env``,
+    ``env_class_for``); the env modules never import it, so there is no import cycle to break with a local import."""
+    import ast
+    from pathlib import Path
+
+    from seagul_envs import registration
+
+    assert seagul_envs.make_env is registration.make_env and seagul_envs.register_task is registration.register_task
+    envs_dir = Path(seagul_envs.__file__).parent / "envs"
+    for path in sorted(envs_dir.glob("*.py")):
+        for node in ast.walk(ast.parse(path.read_text())):
+            names = [a.name for a in node.names] if isinstance(node, ast.Import) else []
+            if isinstance(node, ast.ImportFrom):
+                names = [node.module or ""]
+            assert not any(n.startswith("seagul_envs.registration") for n in names), path.name
+    # What make_env gives, through either name: a registered task's env is gym.make of its id.
+    env = registration.make_env("acrobot")
+    assert env.spec is not None and env.spec.id == "SeagulAcrobot-v0"
+    env.close()
+
+
+@pytest.mark.parametrize("name", ["make_env", "env_class_for"])
+def test_the_moved_task_env_names_still_work_with_a_warning(name: str) -> None:
+    from seagul_envs import registration
+    from seagul_envs.envs import task_env
+
+    with pytest.warns(DeprecationWarning, match=rf"seagul_envs\.envs\.task_env\.{name} is deprecated"):
+        old = getattr(task_env, name)
+    assert old is getattr(registration, name)
+    with pytest.raises(AttributeError, match="no attribute 'not_a_name'"):
+        task_env.not_a_name  # noqa: B018
