@@ -16,7 +16,10 @@ Observations are ``[x, time_to_go]`` as the seagul envs emit them (single ``(nx 
 
 from __future__ import annotations
 
+import io
+import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import casadi as ca
@@ -24,6 +27,15 @@ import numpy as np
 import scipy.linalg
 
 from seagul_envs.tasks.base import Task
+
+#: Format tag of :meth:`LQRPolicy.save` files.
+LQR_FORMAT_TAG = "seagul-lqr"
+
+
+def _npy(arr: np.ndarray) -> bytes:
+    buffer = io.BytesIO()
+    np.save(buffer, np.asarray(arr, dtype=float), allow_pickle=False)
+    return buffer.getvalue()
 
 
 # ---------------------------------------------------------------------------------------------- observations
@@ -111,6 +123,9 @@ class LQRPolicy:
         R: input weight (default: ``profile.lqr_R``, else ``extras["R"]`` at an equilibrium goal and ``0.01 * I``
             for tracking, else the identity).
         nominal: a given nominal trajectory for the time-varying variant (default: solved once at construction).
+
+    :meth:`save` writes the policy's settings and the task's fingerprint to one zip file; :meth:`load` recomputes
+    the gains and checks them against the stored ones.
     """
 
     def __init__(
@@ -122,6 +137,7 @@ class LQRPolicy:
         nominal: NominalTrajectory | None = None,
     ) -> None:
         self.task = task
+        self._given = (Q, R, nominal)  # what save() stores: the settings, not the derived gains
         self.dt = float(task.control_period if dt is None else dt)
         if not (np.isfinite(self.dt) and self.dt > 0):
             raise ValueError(f"LQRPolicy: dt must be a positive number of seconds, got {dt!r}")
@@ -168,17 +184,79 @@ class LQRPolicy:
         self.last_info = [{"source": "lqr"} for _ in range(xs.shape[0])]
         return output_actions(actions, batched), state
 
+    # ------------------------------------------------------------------ saving
+    def save(self, path: str | os.PathLike[str]) -> Path:
+        """Write the policy to one zip file: ``data.json`` (``{"format": "seagul-lqr", "version": 1, "class", "dt",
+        "Q", "R", "time_varying", "task_name", "task_fingerprint", "seagul_version"}``), the gains
+        (``gains.npy``) and a given nominal trajectory (``nominal.npz``); returns the path."""
+        from seagul_control.mpc.saving import FORMAT_VERSION, seagul_version, write_archive
+
+        Q, R, nominal = self._given
+        data = {
+            "format": LQR_FORMAT_TAG,
+            "version": FORMAT_VERSION,
+            "class": type(self).__name__,
+            "dt": self.dt,
+            "Q": None if Q is None else np.asarray(Q, dtype=float).tolist(),
+            "R": None if R is None else np.asarray(R, dtype=float).tolist(),
+            "time_varying": self.time_varying,
+            "task_name": self.task.name,
+            "task_fingerprint": self.task.fingerprint(),
+            "seagul_version": seagul_version(),
+        }
+        members = {"gains.npy": _npy(self.gains)}
+        if nominal is not None:
+            buffer = io.BytesIO()
+            np.savez(buffer, states=nominal.states, controls=nominal.controls, dt=np.array(nominal.dt))
+            members["nominal.npz"] = buffer.getvalue()
+        return write_archive(path, data, members)
+
+    @classmethod
+    def load(cls, path: str | os.PathLike[str], task: Task | None = None) -> LQRPolicy:
+        """Rebuild a policy written by :meth:`save` for ``task`` (default ``make_task`` of the stored name).
+
+        Raises:
+            ValueError: not an LQR file, a task whose fingerprint differs from the stored one, or recomputed gains
+                that differ from the stored ones (another SciPy or CasADi may solve the Riccati equation or the
+                nominal trajectory differently: rebuild the policy and save it again).
+        """
+        from seagul_control.mpc.saving import read_archive, resolve_saved_task
+
+        data, members = read_archive(path, LQR_FORMAT_TAG)
+        task = resolve_saved_task(data, task, path)
+        nominal = None
+        if "nominal.npz" in members:
+            with np.load(io.BytesIO(members["nominal.npz"]), allow_pickle=False) as arrays:
+                nominal = NominalTrajectory(arrays["states"], arrays["controls"], float(arrays["dt"]))
+        Q, R = data.get("Q"), data.get("R")
+        policy = cls(
+            task,
+            dt=float(data["dt"]),
+            Q=None if Q is None else np.asarray(Q, dtype=float),
+            R=None if R is None else np.asarray(R, dtype=float),
+            nominal=nominal,
+        )
+        stored = np.load(io.BytesIO(members["gains.npy"]), allow_pickle=False)
+        if stored.shape != policy.gains.shape or not np.allclose(policy.gains, stored, rtol=1e-6, atol=1e-9):
+            diff = np.max(np.abs(policy.gains - stored)) if stored.shape == policy.gains.shape else float("nan")
+            raise ValueError(
+                f"{os.fspath(path)!r}: the recomputed LQR gains differ from the stored ones (shape {policy.gains.shape}"
+                f" against {stored.shape}, largest difference {diff:.3g}); rebuild the policy with LQRPolicy(task) "
+                "and save it again"
+            )
+        return policy
+
 
 def solve_nominal(
     task: Task, dt: float, x_init: np.ndarray | None = None, tau: float | None = None
 ) -> NominalTrajectory:
     """One full-horizon solve (fixed step ``dt``, the task's terminal box) from the centre of X0 at nominal ``tau``."""
-    from seagul_control.transcription import Transcription
+    from seagul_control.transcription import Transcription, TranscriptionOptions
 
     x_init = 0.5 * (task.x0_low + task.x0_high) if x_init is None else np.asarray(x_init, dtype=float)
     tau = task.tau_nominal if tau is None else float(tau)
     n = max(1, round(tau / dt))
-    trans = Transcription(task, horizon=n, free_time=False, step=dt, final_box=True, solver="ipopt")
+    trans = Transcription(task, n, TranscriptionOptions(free_time=False, step=dt, final_box=True, solver="ipopt"))
     sol = trans.solve(x_init, n * dt)
     if not sol.success:
         raise RuntimeError(f"{task.name}: nominal trajectory solve failed ({sol.status}); cannot build the TVLQR")

@@ -23,9 +23,14 @@ generated as C once, compiled with the system C compiler into ``$SEAGUL_CACHE_DI
 ``~/.cache/seagul/casadi``) under the task's fingerprint and a hash of the generated source
 (``<task>_<solver>_n<n>_<task fingerprint>_<source hash>.so``), and loaded from there: a new process with the same
 problem only regenerates the source (~0.1 s) and loads the library. Without a compiler it falls back to the
-interpreted solver with a warning. Measured gains are in docs/experiments/trajopt.md. This module is the one home of
-compiled CasADi code: the MPC's JIT options (:func:`jit_solver_options`) use the same cache directory
-(:func:`codegen_cache_dir`, i.e. :func:`seagul_control._io.cache_dir`) and compiler lookup.
+interpreted solver with a warning. Measured gains are in docs/experiments/trajopt.md. Compiled CasADi code has one
+home, :mod:`seagul_control.codegen` (the MPC's JIT options use the same cache directory and compiler lookup); this
+module re-exports its names.
+
+Options: everything that configures the build (free or fixed steps, bounds, solver, code generation, wall time) is
+one :class:`~seagul_control.transcription_options.TranscriptionOptions`, ``Transcription(task, n, options)``; the
+old keyword arguments (``Transcription(task, n, solver="fatrop")``) still work and warn. The condensed solver's
+part of the class lives in :mod:`seagul_control.transcription_condensed`.
 
 Wall time: ``max_solve_time`` bounds one solve. IPOPT stops itself (``ipopt.max_wall_time``); fatrop cannot (its
 inertia-correction loop is unbounded), so its solves then run in a killable forked child
@@ -40,35 +45,38 @@ defects in the NLP vectors are the read-only arrays ``state_index``, ``control_i
 
 from __future__ import annotations
 
-import hashlib
-import os
-import shutil
-import subprocess
-import sys
-import tempfile
+import subprocess  # noqa: F401  (kept as an attribute: callers patch seagul_control.transcription.subprocess.run)
 import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import casadi as ca
 import numpy as np
 
-from seagul_control import _io
 from seagul_control._interrupt import interrupts_kept
-from seagul_control._io import atomic_write_text
+from seagul_control._options import merge_deprecated
 from seagul_control._watchdog import ForkedSolver, SolverDied, SolveTimeout
+from seagul_control.codegen import (
+    CODEGEN_FLAGS,
+    codegen_cache_dir,
+    compile_nlp_library,
+    find_c_compiler,
+    jit_solver_options,
+)
+from seagul_control.transcription_condensed import CondensedSolveMixin
+from seagul_control.transcription_options import (
+    TimeMode,
+    TranscriptionOptions,
+    default_fatrop_options,
+    default_ipopt_options,
+)
 from seagul_envs.tasks.base import Task
-
-TimeMode = Literal["equal", "at_most", "free"]
 
 #: IPOPT statuses we accept as a (locally) optimal solution (fatrop reports success through ``stats()["success"]``).
 SUCCESS_STATUSES = frozenset({"Solve_Succeeded", "Solved_To_Acceptable_Level", "Success"})
 
-#: Flags of the cached C compilation: ``-O1`` compiles the ~1.5 MB generated source in about half the time of
-#: ``-O2`` for the same solve speed (measured on the acrobot, docs/experiments/trajopt.md).
-CODEGEN_FLAGS: tuple[str, ...] = ("-O1", "-fPIC", "-shared")
 
 #: Fields of :meth:`Transcription.set` / :meth:`Transcription.get`: name -> (variable, role). Variables: ``"x"`` the
 #: knot state ``x_k`` (stages ``0..n``), ``"u"`` the input ``u_k`` and ``"h"`` the free step ``h_k`` (stages
@@ -119,203 +127,28 @@ class TranscriptionSolution:
     """Bound multipliers (for warm starts)."""
 
 
-def default_ipopt_options() -> dict[str, Any]:
-    """Quiet, exact-Hessian IPOPT settings used unless the caller overrides them."""
-    return {
-        "ipopt.print_level": 0,
-        "ipopt.sb": "yes",
-        "ipopt.tol": 1e-8,
-        "ipopt.acceptable_tol": 1e-6,
-        "ipopt.max_iter": 500,
-        "ipopt.mu_strategy": "adaptive",
-        "print_time": False,
-        # An exploratory iterate may overflow the dynamics (a NaN/Inf step is rejected and retried by the solver).
-        "show_eval_warnings": False,
-    }
-
-
-def default_fatrop_options() -> dict[str, Any]:
-    """Quiet fatrop settings (structure detected from the stage-wise variable and constraint order)."""
-    return {
-        "fatrop.print_level": 0,
-        "print_time": False,
-        "structure_detection": "auto",
-        "fatrop.max_iter": 500,
-        "show_eval_warnings": False,
-    }
-
-
-def codegen_cache_dir() -> Path:
-    """``$SEAGUL_CACHE_DIR`` or ``~/.cache/seagul/casadi``: every compiled CasADi artefact (libraries, JIT objects)."""
-    return _io.cache_dir("casadi")
-
-
-def find_c_compiler() -> str | None:
-    """A C compiler on PATH (``$CC``, gcc, cc, clang) or None."""
-    for name in (os.environ.get("CC"), "gcc", "cc", "clang"):
-        if name and shutil.which(name):
-            return shutil.which(name)
-    return None
-
-
-def compile_nlp_library(
-    solver: ca.Function | tuple[ca.Function, ...],
-    name: str,
-    cache_dir: str | os.PathLike[str] | None = None,
-    fingerprint: str | None = None,
-    flags: tuple[str, ...] | None = None,
-) -> Path:
-    """Generate C for the NLP functions of ``solver``, compile them once per distinct source, return the library.
-
-    ``solver`` may also be a tuple of plain CasADi Functions (e.g. :class:`~seagul_control.shooting.ShootingSolver`'s
-    condensed objective and its derivatives): they are generated into one source, loaded with ``ca.external``.
-
-    ``flags``: compiler flags (default :data:`CODEGEN_FLAGS`; must make a shared library).
-
-    The cache key is a hash of the generated source, the compiler and its flags (and the CasADi version, which shapes
-    the generated code), so a changed model or option never loads a stale library; ``fingerprint`` (the task's
-    :meth:`~seagul_envs.tasks.base.Task.fingerprint`, given by :class:`Transcription`) is part of the file name too,
-    ``<name>_<fingerprint>_<hash>.so``, so the libraries of two tasks that differ in any parameter have different
-    names. Writes are atomic (temporary file then rename), so concurrent processes building the same problem are
-    safe.
-
-    A library named ``<name>_<hash>.so`` (built without a fingerprint) was compiled from the very same source when
-    its hash matches: it is hard-linked under the fingerprinted name instead of compiled again.
-
-    Raises:
-        RuntimeError: no C compiler, or the compilation failed.
-        ValueError: ``fingerprint`` is not a short run of letters and digits.
-    """
-    if fingerprint is not None and not (fingerprint.isalnum() and fingerprint.isascii() and len(fingerprint) <= 32):
-        raise ValueError(f"fingerprint must be at most 32 ASCII letters and digits, got {fingerprint!r}")
-    cc = find_c_compiler()
-    if cc is None:
-        raise RuntimeError("no C compiler found (set $CC or install gcc)")
-    flags = CODEGEN_FLAGS if flags is None else tuple(flags)
-    cache = codegen_cache_dir() if cache_dir is None else Path(cache_dir)
-    cache.mkdir(parents=True, exist_ok=True)
-    with tempfile.TemporaryDirectory(prefix="seagul_codegen_", dir=cache) as tmp:
-        # CasADi writes the generated file into the working directory and wants a bare C identifier as its name.
-        cwd = os.getcwd()
-        try:
-            os.chdir(tmp)
-            if isinstance(solver, tuple):
-                gen = ca.CodeGenerator(f"{name}.c")
-                for fn in solver:
-                    gen.add(fn)
-                gen.generate()
-            else:
-                solver.generate_dependencies(f"{name}.c")
-        finally:
-            os.chdir(cwd)
-        src = Path(tmp) / f"{name}.c"
-        digest = hashlib.sha256()
-        for part in (ca.__version__, cc, *flags):  # type: ignore[attr-defined]  # missing from casadi.pyi
-            digest.update(part.encode() + b"\0")
-        digest.update(src.read_bytes())
-        source_hash = digest.hexdigest()[:20]
-        lib = cache / (f"{name}_{fingerprint}_{source_hash}.so" if fingerprint else f"{name}_{source_hash}.so")
-        if lib.is_file():
-            return lib
-        out = Path(tmp) / f"{name}.so"
-        legacy = cache / f"{name}_{source_hash}.so"
-        if legacy != lib and legacy.is_file():
-            try:
-                os.link(legacy, out)
-                os.replace(out, lib)
-                return lib
-            except OSError:  # no hard links on this filesystem: compile
-                out.unlink(missing_ok=True)
-        proc = subprocess.run([cc, *flags, str(src), "-o", str(out), "-lm"], capture_output=True, text=True)
-        if proc.returncode != 0:
-            raise RuntimeError(f"compiling {src.name} failed: {proc.stderr[-2000:]}")
-        os.replace(out, lib)
-    return lib
-
-
-# ----------------------------------------------------------------------------------------------- MPC JIT
-# The compiler wrapper CasADi's JIT runs (a standalone script: it runs in the compiler's process, outside seagul, so
-# it carries its own atomic copy). Its text is the cache's content check: keep it unchanged unless it must change.
-_CC_WRAPPER = '''"""seagul: compile a CasADi JIT source once, then copy the cached object (written by mpc.py)."""
-import hashlib, os, shutil, subprocess, sys, tempfile
-cache, cc, args = sys.argv[1], sys.argv[2], sys.argv[3:]
-src = next((a for a in args if a.endswith(".c")), None)
-out = args[args.index("-o") + 1] if "-o" in args else None
-if src is None or out is None:
-    sys.exit(subprocess.call([cc, *args]))
-digest = hashlib.sha256()
-digest.update(cc.encode() + b"\\0")
-for a in args:
-    if a not in (src, out):
-        digest.update(a.encode() + b"\\0")
-with open(src, "rb") as f:
-    digest.update(f.read())
-cached = os.path.join(cache, digest.hexdigest() + ".o")
-if os.path.isfile(cached):
-    shutil.copyfile(cached, out)
-    sys.exit(0)
-code = subprocess.call([cc, *args])
-if code == 0:
-    fd, tmp = tempfile.mkstemp(dir=cache, suffix=".tmp")
-    os.close(fd)
-    shutil.copyfile(out, tmp)
-    os.replace(tmp, cached)
-sys.exit(code)
-'''
-
-
-def jit_solver_options(cache_dir: Path | None = None, flags: tuple[str, ...] = ("-O1",)) -> dict[str, Any] | None:
-    """nlpsol options that JIT-compile the NLP functions through the caching compiler wrapper (None: no compiler).
-
-    The objects are cached in ``cache_dir`` (default :func:`codegen_cache_dir`, shared with
-    :func:`compile_nlp_library`) under a hash of the generated source, the compiler and the flags.
-    ``-O1`` is the trade-off measured for the acrobot MPC: ``-O0`` code ran 4x slower, ``-O2``/``-O3`` compile
-    far longer for no measurable gain on these expression graphs.
-    """
-    cc = find_c_compiler()
-    if cc is None:
-        return None
-    cache_dir = codegen_cache_dir() if cache_dir is None else Path(cache_dir)
-    compiler = cc
-    try:
-        cache_dir.mkdir(parents=True, exist_ok=True)
-        script = cache_dir / "seagul_cc.py"
-        if not script.is_file() or script.read_text() != _CC_WRAPPER:
-            atomic_write_text(script, _CC_WRAPPER)
-        # CasADi splits the compiler command on whitespace: only use the wrapper when no path contains a space.
-        parts = (sys.executable, str(script), str(cache_dir), cc)
-        if not any(" " in p for p in parts):
-            compiler = " ".join(parts)
-    except OSError as exc:
-        warnings.warn(f"seagul MPC: JIT cache directory {cache_dir} unusable ({exc}); compiling uncached", stacklevel=2)
-    return {
-        "jit": True,
-        "compiler": "shell",
-        "jit_name": "seagul_mpc",
-        # A fixed name keeps the generated source identical between runs (the cache key); builds happen in a
-        # private directory (the MPC's per-process JIT directory), so equal file names never collide.
-        "jit_temp_suffix": False,
-        "jit_options": {"compiler": compiler, "flags": list(flags), "verbose": False},
-    }
-
-
-class Transcription:
+class Transcription(CondensedSolveMixin):
     """Direct multiple-shooting transcription, built once and solved many times.
 
     Args:
         task: the task (dynamics, costs, bounds).
         horizon: number of intervals ``n`` (default: the task's ``num_steps``).
-        free_time: steps are decision variables (default: ``not task.fixed_step``).
-        step: fixed step (s) when not ``free_time``; ``None`` means ``tau / n``.
-        step_bounds: bounds of free steps (default: the task's).
-        time_mode: how ``sum(h)`` meets ``tau`` (see the module docstring); only used with ``free_time``.
-        final_box: impose the task's terminal box ``x_final_low <= x_n <= x_final_high``.
-        soft_bounds_weight: None (default) imposes the state bounds of knots ``1..n`` (the path bounds and, at ``x_n``,
-            the terminal box) as bounds; a weight ``M > 0`` makes them *soft*, the exact L1 penalty
+        options: how the NLP is built and solved (:class:`TranscriptionOptions`; default ``TranscriptionOptions()``).
+            Its ``soft_bounds_weight``: None (default) imposes the state bounds of knots ``1..n`` (the path bounds
+            and, at ``x_n``, the terminal box) as bounds; a weight ``M > 0`` makes them *soft*, the exact L1 penalty
             ``M * sum_k sum_i max(0, x_k,i - hi_k,i, lo_k,i - x_k,i)`` (slack variables after the last stage; IPOPT
             only). Where the bounds can be met and ``M`` exceeds their multipliers the solution is the hard
             problem's; where they cannot, the problem stays feasible and its value says how far off they are (a
-            finite, graded label where the hard value is infinite). :meth:`bound_penalties` gives the terms.
+            finite, graded label where the hard value is infinite). :meth:`bound_penalties` gives the terms. Its
+            ``model_params``: the task's varying physical parameters (``task.parameters``) enter the NLP as
+            parameters after ``theta``: the dynamics are ``f(x, u, params)`` and one built solver serves every robot
+            in ``Theta`` (:meth:`solve`'s ``model_params``, default the task's own values); their sensitivities
+            ``dV/dparams`` are the last entries of ``param_sensitivity``. Its ``solver``: ``"ipopt"``, ``"fatrop"`` or
+            ``"shooting"`` (condensed single shooting over the inputs, :mod:`seagul_control.shooting`: fixed steps
+            and input bounds only, i.e. no finite state bounds on knots ``1..n`` and no soft bounds; the same NLP with
+            the states eliminated), with ``solver_options`` merged over that solver's defaults
+            (``"shooting.max_iter"``, ``"shooting.tol"``, ... for ``"shooting"``; CasADi's JIT options there mean
+            ``codegen``). ``codegen`` falls back to the interpreted solver with a warning when no compiler works.
         terminal_cost: ``(x, tau_remaining, theta) -> scalar``; default the task's ``l_f(x)``.
         terminal_model: ``(coefficients, model)``: ``(x0, tau_remaining, theta) -> c`` and
             ``(x, tau_remaining, theta, x0, c) -> scalar``, together equal to ``terminal_cost`` to second order in
@@ -325,20 +158,8 @@ class Transcription:
             keeps); ignored by the other solvers. Its ``param_sensitivity`` then has only ``dV/dx_init`` (the other
             entries are NaN).
         n_theta: length of ``theta`` (terminal-cost parameters).
-        model_params: the task's varying physical parameters (``task.parameters``) enter the NLP as parameters after
-            ``theta``: the dynamics are ``f(x, u, params)`` and one built solver serves every robot in ``Theta``
-            (:meth:`solve`'s ``model_params``, default the task's own values); their sensitivities ``dV/dparams``
-            are the last entries of ``param_sensitivity``.
-        substeps: RK4 substeps per interval (default: the task's).
-        solver: ``"ipopt"``, ``"fatrop"`` or ``"shooting"`` (condensed single shooting over the inputs,
-            :mod:`seagul_control.shooting`: fixed steps and input bounds only, i.e. no finite state bounds on knots
-            ``1..n`` and no soft bounds; the same NLP with the states eliminated).
-        solver_options: options merged over the defaults of that solver (``"shooting.max_iter"``,
-            ``"shooting.tol"``, ... for ``"shooting"``; CasADi's JIT options there mean ``codegen``).
-        codegen: compile the NLP functions to C (cached on disk; see the module docstring); falls back to the
-            interpreted solver with a warning when no compiler works.
-        codegen_dir: cache directory of the compiled libraries (default :func:`codegen_cache_dir`).
-        codegen_flags: compiler flags of the library (default :data:`CODEGEN_FLAGS`).
+        **deprecated: the old keyword arguments (``free_time=``, ``solver=``, ...: every field of
+            :class:`TranscriptionOptions`) still work; each moves into the options with a ``DeprecationWarning``.
 
     Attributes:
         state_index: ``(n + 1, nx)`` positions of ``x_k`` in the primal vector (and in ``lam_x``).
@@ -357,51 +178,32 @@ class Transcription:
         self,
         task: Task,
         horizon: int | None = None,
+        options: TranscriptionOptions | None = None,
         *,
-        free_time: bool | None = None,
-        step: float | None = None,
-        step_bounds: tuple[float, float] | None = None,
-        time_mode: TimeMode = "equal",
-        final_box: bool = True,
-        soft_bounds_weight: float | None = None,
         terminal_cost: ca.Function | None = None,
         terminal_model: tuple[ca.Function, ca.Function] | None = None,
         n_theta: int = 0,
-        model_params: bool = False,
-        substeps: int | None = None,
-        solver: Literal["ipopt", "fatrop", "shooting"] = "ipopt",
-        solver_options: dict[str, Any] | None = None,
-        codegen: bool = False,
-        codegen_dir: str | os.PathLike[str] | None = None,
-        codegen_flags: tuple[str, ...] | None = None,
-        max_solve_time: float | None = None,
+        **deprecated: Any,
     ) -> None:
+        options = merge_deprecated("Transcription", TranscriptionOptions, options, deprecated)
+        self.options = options
+        """The options the transcription was built with."""
         n = task.num_steps if horizon is None else int(horizon)
-        if max_solve_time is not None and not (np.isfinite(max_solve_time) and max_solve_time > 0):
-            raise ValueError(f"max_solve_time must be a positive number of seconds or None, got {max_solve_time!r}")
         if n < 1:
             raise ValueError(f"horizon must be >= 1 interval, got {horizon}")
-        if solver not in ("ipopt", "fatrop", "shooting"):
-            raise ValueError(f"unknown solver {solver!r}; use 'ipopt', 'fatrop' or 'shooting'")
-        if time_mode not in ("equal", "at_most", "free"):
-            raise ValueError(f"unknown time_mode {time_mode!r}; use 'equal', 'at_most' or 'free'")
+        free_time, step, final_box = options.free_time, options.step, options.final_box
+        time_mode, solver, model_params = options.time_mode, options.solver, options.model_params
+        solver_options, max_solve_time = options.solver_options, options.max_solve_time
+        codegen, codegen_dir, codegen_flags = options.codegen, options.codegen_dir, options.codegen_flags
         self.task = task
         self.horizon = n
         self.free_time = (not task.fixed_step) if free_time is None else bool(free_time)
-        self.step = None if step is None else float(step)
-        lo_step, hi_step = task.step_bounds if step_bounds is None else step_bounds
+        self.step = step
+        lo_step, hi_step = task.step_bounds if options.step_bounds is None else options.step_bounds
         self.step_bounds: tuple[float, float] = (lo_step, hi_step)
         self.time_mode: TimeMode = time_mode
         self.final_box = final_box
-        if soft_bounds_weight is not None:
-            if not (np.isfinite(soft_bounds_weight) and soft_bounds_weight > 0):
-                raise ValueError(f"soft_bounds_weight must be a positive number or None, got {soft_bounds_weight!r}")
-            if solver != "ipopt":
-                raise ValueError(
-                    "soft_bounds_weight (soft state bounds) needs solver='ipopt': its slack variables "
-                    "are not stage-wise, as fatrop requires"
-                )
-        self.soft_bounds_weight = None if soft_bounds_weight is None else float(soft_bounds_weight)
+        self.soft_bounds_weight = options.soft_bounds_weight
         box_lo = np.maximum(task.x_low, task.x_final_low) if final_box else task.x_low
         box_hi = np.minimum(task.x_high, task.x_final_high) if final_box else task.x_high
         # Per knot 1..n: the bounds the soft penalty measures (the path bounds, the terminal box at the end).
@@ -414,7 +216,7 @@ class Transcription:
             )
         self.model_params = bool(model_params)
         self.n_model_params = task.parameters.size if (model_params and task.parameters is not None) else 0
-        self.substeps = task.rk4_substeps if substeps is None else int(substeps)
+        self.substeps = task.rk4_substeps if options.substeps is None else int(options.substeps)
         self.solver_name = solver
         nx, nu = task.nx, task.nu
 
@@ -565,96 +367,28 @@ class Transcription:
             return
         nlp = {"x": self._w, "p": p, "f": objective, "g": ca.vertcat(*g)}
         if solver == "ipopt":
-            options = {**default_ipopt_options(), "expand": True, **(solver_options or {})}
+            nlp_options = {**default_ipopt_options(), "expand": True, **(solver_options or {})}
             if max_solve_time is not None:  # IPOPT stops itself (the user's own limit, if any, wins)
-                options.setdefault("ipopt.max_wall_time", float(max_solve_time))
+                nlp_options.setdefault("ipopt.max_wall_time", float(max_solve_time))
         else:
-            options = {**default_fatrop_options(), "expand": True, "equality": equality, **(solver_options or {})}
+            nlp_options = {**default_fatrop_options(), "expand": True, "equality": equality, **(solver_options or {})}
         name = f"{task.name}_{solver}_n{n}" + ("_theta" if self.model_params else "")
         compiled: ca.Function | None = None
         if codegen:
             try:
                 # Unexpanded: the generated C then holds one function per stage-level derivative, not n copies.
-                plain = ca.nlpsol(name, solver, nlp, {**options, "expand": False})
+                plain = ca.nlpsol(name, solver, nlp, {**nlp_options, "expand": False})
                 self.codegen_library = compile_nlp_library(plain, name, codegen_dir, task.fingerprint(), codegen_flags)
-                lib_options = {k: v for k, v in options.items() if k != "expand"}
+                lib_options = {k: v for k, v in nlp_options.items() if k != "expand"}
                 compiled = ca.nlpsol(name, solver, str(self.codegen_library), lib_options)
             except (RuntimeError, OSError) as exc:
                 warnings.warn(f"{name}: code generation unavailable ({exc}); solving interpreted", stacklevel=2)
                 self.codegen_library = None
                 compiled = None
-        self._solver: Any = ca.nlpsol(name, solver, nlp, options) if compiled is None else compiled
+        self._solver: Any = ca.nlpsol(name, solver, nlp, nlp_options) if compiled is None else compiled
         # fatrop cannot stop itself inside one iteration (seagul_control._watchdog): it runs in a killable child.
         if self.max_solve_time is not None and solver == "fatrop" and ForkedSolver.supported:
             self._guard = ForkedSolver(self._solver, self.max_solve_time)
-
-    def _build_shooting(
-        self,
-        p: ca.MX,
-        step_fn: ca.Function,
-        terminal_cost: ca.Function,
-        terminal_model: tuple[ca.Function, ca.Function] | None,
-        solver_options: dict[str, Any] | None,
-        codegen: bool,
-        codegen_dir: str | os.PathLike[str] | None,
-        codegen_flags: tuple[str, ...] | None,
-    ) -> None:
-        """The condensed problem ``J(U; p)`` of the same NLP and its :class:`~seagul_control.shooting.ShootingSolver`
-        (``solver="shooting"``; module docstring of :mod:`seagul_control.shooting`)."""
-        from seagul_control.shooting import BufferedFunction, ShootingSolver, condensation_problems
-
-        task, n = self.task, self.horizon
-        problems = condensation_problems(
-            task, free_time=self.free_time, final_box=self.final_box, soft_bounds=self.soft_bounds_weight is not None
-        )
-        if problems:
-            raise ValueError(
-                f"{task.name}: solver 'shooting' needs fixed steps and input bounds only; this transcription has "
-                + ", ".join(problems)
-                + " (use 'fatrop' or 'ipopt')"
-            )
-        options = dict(solver_options or {})
-        jit = options.pop("jit", False)
-        jit_opts = options.pop("jit_options", {}) or {}
-        for key in ("compiler", "jit_name", "jit_temp_suffix", "print_time", "expand", "show_eval_warnings"):
-            options.pop(key, None)
-        own = {}
-        for key, value in options.items():
-            if not key.startswith("shooting."):
-                raise ValueError(f"solver 'shooting' does not take option {key!r}; its options are 'shooting.<name>'")
-            own[key.split(".", 1)[1]] = value
-        if jit and not codegen:
-            codegen = True
-            codegen_flags = (*jit_opts.get("flags", ("-O1",)), "-fPIC", "-shared")
-
-        if terminal_model is None:
-            fns = self._shooting_functions(p, step_fn, terminal_cost, None)
-        else:
-            # The derivatives in U of the model with x0 and c held fixed are an SX graph of the rollout (small);
-            # then x0 := x_n and c := coefficients(x_n), evaluated once, outside every derivative sweep (inlined
-            # in one MX graph, CasADi's forward sweeps of the Hessian re-evaluated the network per direction: 10x).
-            try:
-                light = terminal_model[1].expand()
-            except RuntimeError as exc:
-                raise ValueError(f"{task.name}: the terminal model must be expandable to SX ({exc})") from exc
-            fns = self._shooting_functions(p, step_fn, terminal_cost, (terminal_model[0], light))
-        name = f"{task.name}_shooting_n{n}" + ("_theta" if self.model_params else "")
-        name += "_model" if terminal_model is not None else ""
-        if codegen:
-            try:
-                self.codegen_library = compile_nlp_library(fns, name, codegen_dir, task.fingerprint(), codegen_flags)
-                lib = str(self.codegen_library)
-                fns = tuple(ca.external(fn.name(), lib) for fn in fns)  # type: ignore[assignment]
-            except (RuntimeError, OSError) as exc:
-                warnings.warn(f"{name}: code generation unavailable ({exc}); solving interpreted", stacklevel=3)
-                self.codegen_library = None
-        if self.codegen_library is None:
-            fns = tuple(fn.expand() for fn in fns)  # type: ignore[assignment]
-        lo = np.concatenate([self._lbw[idx] for idx in self._u_idx])
-        hi = np.concatenate([self._ubw[idx] for idx in self._u_idx])
-        self._shooting = ShootingSolver(fns[0], fns[1], lo, hi, **own)
-        self._solver = self._shooting
-        self._shooting_post = BufferedFunction(fns[2])
 
     def _violations(self, states: np.ndarray) -> np.ndarray:
         """``(n, nx)`` bound violations ``max(0, x - hi, lo - x)`` of knots ``1..n``."""
@@ -911,124 +645,10 @@ class Transcription:
             lam_x=np.asarray(out["lam_x"]).ravel(),
         )
 
-    def _shooting_functions(
-        self,
-        p_mx: ca.MX,
-        step_fn: ca.Function,
-        terminal_cost: ca.Function,
-        terminal_model: tuple[ca.Function, ca.Function] | None,
-    ) -> tuple[ca.Function, ca.Function, ca.Function]:
-        """``f: (U, p) -> J``, ``fgh: (U, p) -> (J, dJ/dU, d2J/dU2)`` and ``post: (U, p) -> (states, costates,
-        dJ/dp)`` of the condensed problem; with ``terminal_model`` the derivatives come from the model."""
-        task, n, nx, nu = self.task, self.horizon, self.task.nx, self.task.nu
-        n_p = int(p_mx.numel())
-        name = f"{task.name}_shooting_n{n}"
-        dense = ca.densify
-
-        def step_of(p: Any) -> Any:
-            return p[nx] / n if self.step is None else self.step
-
-        def rollout(U: Any, p: Any, perturb: Any, end: Any) -> tuple[Any, list[Any]]:
-            x_init, tau, h = p[:nx], p[nx], step_of(p)
-            phys = [p[nx + 1 + self.n_theta :]] if self.model_params else []
-            x = x_init if perturb is None else x_init + perturb[:, 0]
-            states, total = [x], 0
-            for k in range(n):
-                u_k = U[k * nu : (k + 1) * nu]
-                total = total + h * task.stage_cost(x, u_k)
-                x = step_fn(x, u_k, h, *phys)
-                if perturb is not None:
-                    x = x + perturb[:, k + 1]
-                states.append(x)
-            return total + end(x, tau - n * h), states
-
-        theta_slice = slice(nx + 1, nx + 1 + self.n_theta)
-        U = ca.MX.sym("U", n * nu)
-        J, states = rollout(U, p_mx, None, lambda x, t: terminal_cost(x, t, p_mx[theta_slice]))
-        f = ca.Function(f"{name}_f", [U, p_mx], [J])
-        if terminal_model is None:
-            D = ca.MX.sym("D", nx, n + 1)
-            H, grad = ca.hessian(J, U)
-            Jd, _ = rollout(U, p_mx, D, lambda x, t: terminal_cost(x, t, p_mx[theta_slice]))
-            costates = ca.substitute(ca.jacobian(Jd, ca.vec(D)), D, ca.DM.zeros(nx, n + 1))
-            fgh = ca.Function(f"{name}_fgh", [U, p_mx], [J, dense(grad), dense(H)])
-            outputs = [dense(ca.horzcat(*states)), dense(costates), dense(ca.jacobian(J, p_mx).T)]
-            return f, fgh, ca.Function(f"{name}_post", [U, p_mx], outputs)
-        coeff_fn, model = terminal_model
-        # The light part in SX: the rollout, the stage costs and the terminal model with x0 and c as inputs (as an
-        # MX graph calling the per-step integrator it compiled 5x faster for one network but 2x slower for the
-        # shipped ensemble, 323 s against ~150 s at -O3 under load).
-        Us, ps = ca.SX.sym("U", n * nu), ca.SX.sym("p", n_p)
-        X0, C = ca.SX.sym("x0", nx), ca.SX.sym("c", int(coeff_fn.nnz_out(0)))
-        Ds = ca.SX.sym("D", nx, n + 1)
-
-        def end(x: Any, t: Any) -> Any:
-            return model(x, t, ps[theta_slice], X0, C)
-
-        Jl, states_s = rollout(Us, ps, None, end)
-        Hl, gl = ca.hessian(Jl, Us)
-        Jdl, _ = rollout(Us, ps, Ds, end)
-        cost_l = ca.substitute(ca.jacobian(Jdl, ca.vec(Ds)), ca.vec(Ds), ca.DM.zeros(nx * (n + 1), 1))
-        light = ca.Function(f"{name}_light", [Us, ps, X0, C], [Jl, dense(gl), dense(Hl)])
-        light_post = ca.Function(f"{name}_light_post", [Us, ps, X0, C], [dense(cost_l)])
-        roll = ca.Function(f"{name}_roll", [Us, ps], [dense(ca.horzcat(*states_s))])
-        traj = roll(U, p_mx)
-        x_n = traj[:, n]
-        coeffs = coeff_fn(x_n, p_mx[nx] - n * step_of(p_mx), p_mx[theta_slice])
-        j_l, g_l, h_l = light(U, p_mx, x_n, coeffs)
-        c_l = light_post(U, p_mx, x_n, coeffs)
-        fgh = ca.Function(f"{name}_fgh", [U, p_mx], [j_l, g_l, h_l])
-        sens = ca.vertcat(c_l[:nx].T, ca.DM.nan(n_p - nx, 1))
-        post = ca.Function(f"{name}_post", [U, p_mx], [traj, dense(c_l), dense(sens)])
-        return f, fgh, post
-
     @property
     def condensed(self) -> bool:
         """True when the condensed solver (``solver="shooting"``) solves this transcription (it takes ``starts``)."""
         return self._shooting is not None
-
-    def _solve_shooting(
-        self, w0: np.ndarray, p: np.ndarray, tau: float, starts: int | None = None
-    ) -> TranscriptionSolution:
-        """:meth:`solve` with ``solver="shooting"``: the inputs of ``w0`` start the condensed solve; the result is
-        laid out as the lifted NLP's (states rolled out, multipliers from the costates)."""
-        start = time.perf_counter()
-        u_idx = np.concatenate(self._u_idx)
-        res = self._shooting.solve(w0[u_idx], p, self._lbw[u_idx], self._ubw[u_idx], self.max_solve_time, starts)
-        self._shooting_post.set_input(1, p)
-        states_t, costates, dj_dp = (o.T.copy() for o in self._shooting_post(res.controls))
-        elapsed = time.perf_counter() - start
-        nx, n = self.task.nx, self.horizon
-        states = np.asarray(states_t, dtype=float).reshape(nx, n + 1).T
-        lam_states = np.asarray(costates, dtype=float).reshape(n + 1, nx)  # column-major vec(D): knot by knot
-        controls = res.controls.reshape(n, self.task.nu)
-        w = self.pack_guess(states, controls)
-        # Multipliers in CasADi's convention for the lifted NLP: rows x_{k+1} - F carry -dV_{k+1}/dx_{k+1}, the
-        # initial rows x_0 - x_init carry dV/dx_0; the input bounds carry -dJ/du where a bound is active.
-        lam_g = np.zeros(self._lbg.size)
-        lam_g[self.initial_rows] = lam_states[0]
-        for k, rows in enumerate(self._defect_rows):
-            lam_g[rows] = -lam_states[k + 1]
-        lam_x = np.zeros(self._lbw.size)
-        if res.success:
-            at_bound = (res.controls <= self._lbw[u_idx] + 1e-9) | (res.controls >= self._ubw[u_idx] - 1e-9)
-            lam_x[u_idx] = np.where(at_bound, -res.gradient, 0.0)
-        ok = res.success and bool(np.all(np.isfinite(w)))
-        return TranscriptionSolution(
-            success=ok,
-            status=res.status,
-            objective=res.objective,
-            states=states,
-            controls=controls,
-            steps=np.full(n, tau / n if self.step is None else self.step),
-            param_sensitivity=np.asarray(dj_dp, dtype=float).ravel(),
-            defect_multipliers=lam_states[1:].copy(),
-            iterations=res.iterations,
-            solve_time=elapsed,
-            primal=w,
-            lam_g=lam_g,
-            lam_x=lam_x,
-        )
 
     def _failed(self, w0: np.ndarray, status: str, elapsed: float) -> TranscriptionSolution:
         """A solve that produced nothing (e.g. stopped by ``max_solve_time``): NaN solution, the guess as primal."""
@@ -1058,3 +678,21 @@ class Transcription:
 def _read_only(arr: np.ndarray) -> np.ndarray:
     arr.setflags(write=False)
     return arr
+
+
+#: Everything this module exported before code generation and the options moved into their own modules.
+__all__ = [
+    "CODEGEN_FLAGS",
+    "STAGE_FIELDS",
+    "SUCCESS_STATUSES",
+    "TimeMode",
+    "Transcription",
+    "TranscriptionOptions",
+    "TranscriptionSolution",
+    "codegen_cache_dir",
+    "compile_nlp_library",
+    "default_fatrop_options",
+    "default_ipopt_options",
+    "find_c_compiler",
+    "jit_solver_options",
+]

@@ -20,6 +20,11 @@ class CasadiValueFunction(Protocol):
     compiled MPC (``jit=True``) then generates its lookahead unexpanded, which keeps large networks' exact Hessians
     small and fast (``seagul_learn.ValueNetwork`` and ``ValueEnsemble`` offer it). A value function without the
     ``form`` argument is used in its one (scalar) form.
+
+    Optionally ``task_fingerprint`` is the :meth:`~seagul_envs.tasks.base.Task.fingerprint` of the task the value
+    function was trained for (``seagul_learn.ValueNetwork`` stores it in its file). The MPC refuses a value function
+    whose fingerprint differs from its task's (a same-named variant: another mass, other bounds or costs) and accepts
+    one without it (absent or ``""``), so it is not part of the protocol's required members.
     """
 
     task_name: str

@@ -17,8 +17,11 @@ accepts any newly trained network of the same shape (it implements
 :class:`seagul_control.value_function.CasadiValueFunction`).
 
 File format (``save``/``load``): one ``torch.save`` file holding a plain dict
-``{"format": "seagul-value-network", "version": 1, "task_name", "config": {"nx", "hidden"}, "state_dict"}`` (tensors
-and builtins only, so it loads with ``weights_only=True``).
+``{"format": "seagul-value-network", "version": 1, "task_name", "task_fingerprint", "config": {"nx", "hidden"},
+"state_dict"}`` (tensors and builtins only, so it loads with ``weights_only=True``). ``task_fingerprint`` is the
+trained task's :meth:`~seagul_envs.tasks.base.Task.fingerprint` (``""`` when unknown; files written before it existed
+lack the key and load with ``""``): an MPC refuses a network whose fingerprint is not its task's, so a network
+trained on one variant of a task is never used on a same-named other one.
 """
 
 from __future__ import annotations
@@ -128,10 +131,13 @@ class ValueNetwork(nn.Module):
         seed: int | None = None,
         n_params: int = 0,
         theta: Any = None,
+        task_fingerprint: str = "",
     ) -> None:
         """Build the network; ``seed`` makes the initial weights reproducible without touching global RNG state.
         ``n_params > 0`` adds the physical parameters to the inputs; ``theta`` is the initial condition (default
-        zeros; the trainer sets the task's values)."""
+        zeros; the trainer sets the task's values). ``task_fingerprint``: the
+        :meth:`~seagul_envs.tasks.base.Task.fingerprint` of the task the network is trained for ("" if unknown): an
+        MPC then refuses the network for a same-named variant of that task."""
         super().__init__()
         if int(nx) < 1:
             raise ValueError(f"nx must be >= 1, got {nx}")
@@ -142,6 +148,8 @@ class ValueNetwork(nn.Module):
             raise ValueError(f"hidden widths must be a non-empty sequence of positive integers, got {hidden}")
         self.config = ValueNetworkConfig(nx=int(nx), hidden=hidden, n_params=int(n_params))
         self.task_name = str(task_name)
+        self.task_fingerprint = str(task_fingerprint)
+        """Fingerprint of the task the network is trained for ("" if unknown; stored in its file)."""
         n_in = self.config.nx + 1 + self.config.n_params
         widths = [n_in, *hidden, 1]
         with torch.random.fork_rng(devices=[]):
@@ -346,7 +354,7 @@ class ValueNetwork(nn.Module):
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the network to ``path`` atomically (temp file + rename); returns the path."""
         config = {"nx": self.config.nx, "hidden": list(self.config.hidden), "n_params": self.n_params}
-        return _write_file(path, FORMAT_TAG, self.task_name, config, self)
+        return _write_file(path, FORMAT_TAG, self.task_name, config, self, self.task_fingerprint)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> ValueNetwork:
@@ -375,6 +383,7 @@ class ValueNetwork(nn.Module):
                 hidden=tuple(config["hidden"]),
                 task_name=str(payload["task_name"]),
                 n_params=int(config.get("n_params", 0)),  # files of networks without robot parameters have none
+                task_fingerprint=str(payload.get("task_fingerprint", "")),  # older files have none
             )
             net.load_state_dict(payload["state_dict"])
         except Exception as exc:
@@ -384,7 +393,9 @@ class ValueNetwork(nn.Module):
         return net
 
     def extra_repr(self) -> str:
-        return f"task={self.task_name!r}, config={asdict(self.config)}"
+        return f"task={self.task_name!r}, config={asdict(self.config)}" + (
+            f", fingerprint={self.task_fingerprint}" if self.task_fingerprint else ""
+        )
 
 
 def _num_parameters(nx: int, hidden: tuple[int, ...], n_params: int) -> int:
@@ -418,6 +429,7 @@ class ValueEnsemble(nn.Module):
         seed: int | None = None,
         n_params: int = 0,
         theta: Any = None,
+        task_fingerprint: str = "",
     ) -> None:
         super().__init__()
         if int(members) < 2:
@@ -433,11 +445,14 @@ class ValueEnsemble(nn.Module):
                 seed=None if seed is None else 1000 * base + k,
                 n_params=n_params,
                 theta=theta,
+                task_fingerprint=task_fingerprint,
             )
             for k in range(int(members))
         )
         self.pessimism = float(pessimism)
         self.task_name = str(task_name)
+        self.task_fingerprint = str(task_fingerprint)
+        """Fingerprint of the task the ensemble is trained for ("" if unknown; stored in its file)."""
         self.config: ValueNetworkConfig = self.networks[0].config
 
     @property
@@ -504,6 +519,7 @@ class ValueEnsemble(nn.Module):
             self.pessimism if pessimism is None else float(pessimism),
             task_name=self.task_name,
             n_params=self.n_params,
+            task_fingerprint=self.task_fingerprint,
         )
         for k, i in enumerate(idx):
             out.members[k].load_state_dict(self.members[i].state_dict())
@@ -575,7 +591,7 @@ class ValueEnsemble(nn.Module):
             "pessimism": self.pessimism,
             "n_params": self.n_params,
         }
-        return _write_file(path, ENSEMBLE_FORMAT_TAG, self.task_name, config, self)
+        return _write_file(path, ENSEMBLE_FORMAT_TAG, self.task_name, config, self, self.task_fingerprint)
 
     @classmethod
     def _from_payload(cls, payload: dict[str, Any], path: Path) -> ValueEnsemble:
@@ -589,6 +605,7 @@ class ValueEnsemble(nn.Module):
                 float(c["pessimism"]),
                 task_name=str(payload["task_name"]),
                 n_params=int(c.get("n_params", 0)),
+                task_fingerprint=str(payload.get("task_fingerprint", "")),  # older files have none
             )
             ens.load_state_dict(payload["state_dict"])
         except Exception as exc:
@@ -606,7 +623,12 @@ ValueModel: TypeAlias = ValueNetwork | ValueEnsemble
 
 
 def _write_file(
-    path: str | os.PathLike[str], tag: str, task_name: str, config: dict[str, Any], module: nn.Module
+    path: str | os.PathLike[str],
+    tag: str,
+    task_name: str,
+    config: dict[str, Any],
+    module: nn.Module,
+    task_fingerprint: str = "",
 ) -> Path:
     """One ``torch.save`` dict (tensors and builtins only: loads with ``weights_only=True``), written atomically."""
     path = Path(path)
@@ -614,6 +636,7 @@ def _write_file(
         "format": tag,
         "version": FORMAT_VERSION,
         "task_name": task_name,
+        "task_fingerprint": task_fingerprint,
         "config": config,
         "state_dict": {k: v.detach().clone() for k, v in module.state_dict().items()},
     }

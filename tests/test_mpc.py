@@ -11,12 +11,20 @@ import pytest
 import scipy.linalg
 
 import seagul_envs  # noqa: F401  (registers the envs)
-from seagul_control.mpc import FullHorizonMPC, LimitedLookaheadMPC, _Plan, _Problem, _shift_guess
-from seagul_control.transcription import Transcription
+from seagul_control.mpc import (
+    FullHorizonMPC,
+    FullHorizonOptions,
+    LimitedLookaheadMPC,
+    MPCOptions,
+    _Plan,
+    _Problem,
+    _shift_guess,
+)
+from seagul_control.transcription import Transcription, TranscriptionOptions
 from seagul_envs import make_task
 
 # Interpreted solvers keep the default suite free of minutes of C compilation.
-FAST = {"jit": False}
+FAST = MPCOptions(jit=False)
 GLIDER_X0 = np.array([-3.5, 0.1, 0.0, 0.0, 7.0, 0.0, 0.0])
 
 
@@ -66,16 +74,16 @@ def test_lq_mpc_with_exact_terminal_cost_equals_lqr_and_full_horizon():
     x0 = task.goal + np.array([0.02, -0.03, 0.05, -0.02])
     expected = -K @ (x0 - task.goal)
     assert 0.05 < abs(expected[0]) < task.u_high[0]  # inside the bounds, and not trivially zero
-    tight = {"tol": 1e-10, **FAST}
-    mpc = LimitedLookaheadMPC(task, QuadraticValue(P, task.goal), 5, trust_region="none", clamp=False, **tight)
-    full = FullHorizonMPC(task, **tight)
+    tight = FAST.replace(tol=1e-10, clamp=False)
+    mpc = LimitedLookaheadMPC(task, QuadraticValue(P, task.goal), 5, tight, trust_region="none")
+    full = FullHorizonMPC(task, FullHorizonOptions(tol=1e-10))
     u_mpc, info = mpc.act(x0, 5.0)
     u_full, _ = full.act(x0, 5.0)
     assert info.source == "solver"
     np.testing.assert_allclose(u_mpc, expected, rtol=1e-6, atol=1e-8)
     np.testing.assert_allclose(u_full, expected, rtol=1e-6, atol=1e-8)
     # A wrong terminal cost must change the answer (the check above is not vacuous).
-    wrong = LimitedLookaheadMPC(task, QuadraticValue(0.1 * P, task.goal), 5, trust_region="none", clamp=False, **tight)
+    wrong = LimitedLookaheadMPC(task, QuadraticValue(0.1 * P, task.goal), 5, tight, trust_region="none")
     assert abs(wrong.act(x0, 5.0)[0][0] - expected[0]) > 1e-3
 
 
@@ -84,7 +92,7 @@ def test_mpc_with_full_horizon_cost_to_go_reproduces_the_full_horizon_first_acti
     task = make_task("acrobot")
     n, m = 5, task.num_steps
     x0 = task.goal + np.array([0.15, -0.1, 0.2, -0.1])
-    full = Transcription(task, m, free_time=False, step=task.control_period, final_box=False)
+    full = Transcription(task, m, TranscriptionOptions(free_time=False, step=task.control_period, final_box=False))
     sol = full.solve(x0, task.tau_nominal)
     assert sol.success
     x_n = sol.states[n]
@@ -92,26 +100,30 @@ def test_mpc_with_full_horizon_cost_to_go_reproduces_the_full_horizon_first_acti
     v_n = sol.objective - stage[:n].sum()
     grad_n = sol.defect_multipliers[n - 1]
     # Re-solve the tail from knot n: same cost-to-go and the same gradient (dual of x_0 = x_init).
-    tail = Transcription(task, m - n, free_time=False, step=task.control_period, final_box=False).solve(
-        x_n, task.tau_nominal - n * task.control_period
-    )
+    tail = Transcription(
+        task, m - n, TranscriptionOptions(free_time=False, step=task.control_period, final_box=False)
+    ).solve(x_n, task.tau_nominal - n * task.control_period)
     assert tail.objective == pytest.approx(v_n, rel=1e-6)
     np.testing.assert_allclose(tail.param_sensitivity[: task.nx], grad_n, rtol=1e-4, atol=1e-6)
 
     value = QuadraticValue(task.extras["Qf"], x_n, grad_n, v_n)
-    exact = {"trust_region": "none", "clamp": False, "anchor_goal": False, "tol": 1e-10, **FAST}
-    mpc = LimitedLookaheadMPC(task, value, n, **exact)
+    exact = FAST.replace(trust_region="none", clamp=False, anchor_goal=False, tol=1e-10)
+    mpc = LimitedLookaheadMPC(task, value, n, exact)
     u, info = mpc.act(x0, task.tau_nominal)
     assert info.success
     np.testing.assert_allclose(u, sol.controls[0], atol=1e-4)
     # Without the gradient term the short MPC acts differently: the check has teeth.
-    plain = LimitedLookaheadMPC(task, QuadraticValue(task.extras["Qf"], x_n, None, v_n), n, **exact)
+    plain = LimitedLookaheadMPC(task, QuadraticValue(task.extras["Qf"], x_n, None, v_n), n, exact)
     assert np.max(np.abs(plain.act(x0, task.tau_nominal)[0] - sol.controls[0])) > 1e-2
 
 
 def _acrobot_mpc(**kwargs):
     task = make_task("acrobot")
-    return task, LimitedLookaheadMPC(task, QuadraticValue(task.extras["Qf"], task.goal), 5, **{**FAST, **kwargs})
+    trust_region = kwargs.pop("trust_region", None)
+    options = FAST.replace(**kwargs)
+    return task, LimitedLookaheadMPC(
+        task, QuadraticValue(task.extras["Qf"], task.goal), 5, options, trust_region=trust_region
+    )
 
 
 def _obs(x: np.ndarray, tau: float) -> np.ndarray:
@@ -208,11 +220,15 @@ def test_terminal_cost_equals_the_value_network_it_wraps():
         net.layers[-1].bias.fill_(3.0)  # keep V > 0 so the clamp is inactive on most points
     box = (task.goal - 1.0, task.goal + 1.0)
     mpc = LimitedLookaheadMPC(
-        task, net, 5, trust_region="box", trust_box=box, trust_weight=7.0, anchor_goal=False, goal_blend=0.0, **FAST
+        task,
+        net,
+        5,
+        FAST.replace(trust_box=box, trust_weight=7.0, anchor_goal=False, goal_blend=0.0),
+        trust_region="box",
     )
     raw = {"clamp": False, "anchor_goal": False, "goal_blend": 0.0}
-    prior = LimitedLookaheadMPC(task, net, 5, trust_region="lqr", **raw, **FAST)
-    plain = LimitedLookaheadMPC(task, net, 5, trust_region="none", **raw, **FAST)
+    prior = LimitedLookaheadMPC(task, net, 5, FAST.replace(**raw), trust_region="lqr")
+    plain = LimitedLookaheadMPC(task, net, 5, FAST.replace(**raw), trust_region="none")
     for x, tau in zip(task.sample_x0(rng, 5), rng.uniform(0.5, 4.5, 5), strict=True):
         expected = float(net.predict(x[None], tau)[0])
         assert plain.terminal_cost_value(x, tau) == pytest.approx(expected, rel=1e-10, abs=1e-10)
@@ -232,7 +248,7 @@ def test_new_network_of_the_same_architecture_does_not_rebuild_the_solver():
     task = make_task("acrobot")
     a = ValueNetwork(4, (32,), task_name="acrobot", seed=1)
     b = ValueNetwork(4, (32,), task_name="acrobot", seed=2)
-    mpc = LimitedLookaheadMPC(task, a, 5, trust_region="none", **FAST)
+    mpc = LimitedLookaheadMPC(task, a, 5, FAST, trust_region="none")
     solver_before = mpc._lookahead.trans._solver
     x = task.goal + np.array([0.1, 0.1, 0.0, 0.0])
     u_a, _ = mpc.act(x, 5.0)
@@ -249,7 +265,7 @@ def test_new_network_of_the_same_architecture_does_not_rebuild_the_solver():
 @pytest.mark.parametrize("horizon", [0, -3, 2.5, True])
 def test_bad_horizon_raises(horizon):
     with pytest.raises(ValueError, match="horizon must be an integer >= 1"):
-        LimitedLookaheadMPC(make_task("acrobot"), None, horizon, **FAST)
+        LimitedLookaheadMPC(make_task("acrobot"), None, horizon, FAST)
 
 
 def test_bad_observations_raise():
@@ -275,7 +291,7 @@ def test_glider_final_phase_shrinks_to_the_episode_end():
     task = make_task("glider")
     goal_like = QuadraticValue(np.diag(task.extras["Qf"].diagonal()), task.goal)
     goal_like.task_name = "glider"
-    mpc = LimitedLookaheadMPC(task, goal_like, 10, **FAST)
+    mpc = LimitedLookaheadMPC(task, goal_like, 10, FAST)
     from seagul_control.lqr import LQRPolicy
 
     nominal = LQRPolicy(task)
@@ -305,9 +321,10 @@ def test_goal_anchoring_removes_the_networks_value_and_slope_at_the_goal():
 
     task = make_task("acrobot")
     net = ValueNetwork(4, (32,), task_name="acrobot", seed=3)
-    anchored = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, goal_blend=0.0, **FAST)
+    anchored = LimitedLookaheadMPC(task, net, 5, FAST.replace(clamp=False, goal_blend=0.0), trust_region="none")
     assert anchored.anchor_goal  # default for a zero-cost equilibrium goal
-    raw = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, anchor_goal=False, goal_blend=0.0, **FAST)
+    unanchored = FAST.replace(clamp=False, anchor_goal=False, goal_blend=0.0)
+    raw = LimitedLookaheadMPC(task, net, 5, unanchored, trust_region="none")
     g = task.goal
     assert abs(raw.terminal_cost_value(g, 2.0)) > 1e-3  # the random network is not zero there
     assert anchored.terminal_cost_value(g, 2.0) == pytest.approx(0.0, abs=1e-12)
@@ -321,7 +338,7 @@ def test_goal_anchoring_removes_the_networks_value_and_slope_at_the_goal():
     expected = float(net.predict(x[None], 2.0)[0]) - v - grad @ (x - g)
     assert anchored.terminal_cost_value(x, 2.0) == pytest.approx(expected, rel=1e-9, abs=1e-9)
     with pytest.raises(ValueError, match="zero-cost equilibrium"):
-        LimitedLookaheadMPC(make_task("glider"), None, 10, anchor_goal=True, **FAST)
+        LimitedLookaheadMPC(make_task("glider"), None, 10, FAST.replace(anchor_goal=True))
 
 
 def test_goal_blend_is_l_f_at_the_goal_and_the_network_far_away():
@@ -330,8 +347,8 @@ def test_goal_blend_is_l_f_at_the_goal_and_the_network_far_away():
 
     task = make_task("acrobot")
     net = ValueNetwork(4, (32,), task_name="acrobot", seed=3)
-    plain = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, goal_blend=0.0, **FAST)
-    blended = LimitedLookaheadMPC(task, net, 5, trust_region="none", clamp=False, goal_blend=0.5, **FAST)
+    plain = LimitedLookaheadMPC(task, net, 5, FAST.replace(clamp=False, goal_blend=0.0), trust_region="none")
+    blended = LimitedLookaheadMPC(task, net, 5, FAST.replace(clamp=False, goal_blend=0.5), trust_region="none")
     g = task.goal
     for d in (np.zeros(4), np.array([0.01, -0.02, 0.05, 0.0]), np.array([0.3, 0.2, -0.5, 1.0]), np.full(4, 3.0)):
         x = g + d
@@ -341,12 +358,12 @@ def test_goal_blend_is_l_f_at_the_goal_and_the_network_far_away():
         assert blended.terminal_cost_value(x, 2.0) == pytest.approx(expected, rel=1e-10, abs=1e-12)
     far = g + np.full(4, 3.0)
     assert blended.terminal_cost_value(far, 2.0) == pytest.approx(plain.terminal_cost_value(far, 2.0), rel=1e-6)
-    assert LimitedLookaheadMPC(task, net, 5, **FAST).goal_blend == 1.0  # the acrobot's profile
-    assert LimitedLookaheadMPC(make_task("glider"), None, 10, **FAST).goal_blend == 0.0
+    assert LimitedLookaheadMPC(task, net, 5, FAST).goal_blend == 1.0  # the acrobot's profile
+    assert LimitedLookaheadMPC(make_task("glider"), None, 10, FAST).goal_blend == 0.0
     with pytest.raises(ValueError, match="goal_blend must be a finite number >= 0"):
-        LimitedLookaheadMPC(task, net, 5, goal_blend=-1.0, **FAST)
+        FAST.replace(goal_blend=-1.0)
     with pytest.raises(ValueError, match="goal_blend needs a goal that is a zero-cost equilibrium"):
-        LimitedLookaheadMPC(make_task("glider"), None, 10, goal_blend=1.0, **FAST)
+        LimitedLookaheadMPC(make_task("glider"), None, 10, FAST.replace(goal_blend=1.0))
 
 
 def test_jit_object_cache_is_keyed_by_the_generated_source(tmp_path):
@@ -370,7 +387,9 @@ def test_jit_object_cache_is_keyed_by_the_generated_source(tmp_path):
 def _glider_final_problem(shrink: bool) -> _Problem:
     task = make_task("glider")
     hi = max(task.step_bounds[1], task.control_period)
-    trans = Transcription(task, 5, free_time=True, step_bounds=(0.0, hi), time_mode="equal", final_box=True)
+    trans = Transcription(
+        task, 5, TranscriptionOptions(free_time=True, step_bounds=(0.0, hi), time_mode="equal", final_box=True)
+    )
     return _Problem(trans, "final", True, shrink, task.step_bounds[0])
 
 
@@ -400,7 +419,9 @@ def test_shifted_multipliers_match_the_stage_layout(name):
     if name == "glider":
         problem = _glider_final_problem(True)
     else:
-        problem = _Problem(Transcription(task, 5, free_time=False, step=0.1, final_box=False), "lookahead", False)
+        problem = _Problem(
+            Transcription(task, 5, TranscriptionOptions(free_time=False, step=0.1, final_box=False)), "lookahead", False
+        )
     trans = problem.trans
     n, nx, a = trans.horizon, task.nx, 2
     rng = np.random.default_rng(3)
@@ -437,7 +458,9 @@ def test_shifted_multipliers_match_the_stage_layout(name):
         want_g[rows] = vals
     np.testing.assert_array_equal(lam_g, want_g)
     np.testing.assert_array_equal(primal[trans.state_index[0]], x)
-    other = _Problem(Transcription(task, n, free_time=trans.free_time, step=trans.step), "other", False)
+    other = _Problem(
+        Transcription(task, n, TranscriptionOptions(free_time=trans.free_time, step=trans.step)), "other", False
+    )
     assert _shift_guess(plan, other, x, 0.05, 0.5)[1:] == (None, None)  # another layout: no multipliers
 
 
@@ -467,9 +490,9 @@ def test_compiled_matrix_form_value_function_is_the_interpreted_one(tmp_path, en
         return vf
 
     a, b = make(1), make(2)
-    options = {"trust_region": "lqr", "goal_blend": 0.5, "max_iter": 50, "solver": "fatrop"}
-    compiled = LimitedLookaheadMPC(task, a, 5, jit=True, jit_cache_dir=tmp_path, **options)
-    interpreted = LimitedLookaheadMPC(task, a, 5, jit=False, **options)
+    options = MPCOptions(trust_region="lqr", goal_blend=0.5, max_iter=50, solver="fatrop")
+    compiled = LimitedLookaheadMPC(task, a, 5, options.replace(jit=True, jit_cache_dir=str(tmp_path)))
+    interpreted = LimitedLookaheadMPC(task, a, 5, options.replace(jit=False))
     assert compiled._matrix_form() and not interpreted._matrix_form()
     assert compiled.anchor_goal and compiled._lookahead.trans.codegen_library is not None
     for vf in (a, b):
@@ -511,27 +534,27 @@ def test_glider_soft_final_phase_returns_a_plan_where_the_exact_perch_is_out_of_
     (IPOPT, exact L1 penalty) converges to the plan that ends closest to it."""
     task = make_task("glider")
     x = np.array([-0.38, 0.08, 1.46, -0.7, 2.48, 0.16, 1.61])
-    hard = LimitedLookaheadMPC(task, None, 10, jit=False, final_soft_weight=0)
+    hard = LimitedLookaheadMPC(task, None, 10, MPCOptions(jit=False, final_soft_weight=0))
     assert hard.final_soft_weight is None and hard.final_solver == "fatrop"
     _, info = hard.act(x, 0.25)
     assert info.phase == "final" and not info.success and info.source != "solver"
-    soft = LimitedLookaheadMPC(task, None, 10, jit=False)
+    soft = LimitedLookaheadMPC(task, None, 10, MPCOptions(jit=False))
     assert soft.final_soft_weight == task.profile.mpc_final_soft_weight == 1e4 and soft.final_solver == "ipopt"
     u, info = soft.act(x, 0.25)
     assert info.phase == "final" and info.success and info.source == "solver", info.status
     assert np.all(np.abs(u) <= task.u_high)
-    with pytest.raises(ValueError, match="final_soft_weight must be a number >= 0"):
-        LimitedLookaheadMPC(task, None, 10, jit=False, final_soft_weight=-1.0)
+    with pytest.raises(ValueError, match="final_soft_weight must be a finite number >= 0"):
+        LimitedLookaheadMPC(task, None, 10, MPCOptions(jit=False, final_soft_weight=-1.0))
     with pytest.raises(ValueError, match="final_solver must be"):
-        LimitedLookaheadMPC(task, None, 10, jit=False, final_solver="snopt")  # type: ignore[arg-type]
+        LimitedLookaheadMPC(task, None, 10, MPCOptions(jit=False, final_solver="snopt"))  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="final_soft_weight needs final_solver='ipopt'"):
-        LimitedLookaheadMPC(task, None, 10, jit=False, final_solver="fatrop", final_soft_weight=1e4)
+        LimitedLookaheadMPC(task, None, 10, MPCOptions(jit=False, final_solver="fatrop", final_soft_weight=1e4))
     # The free-time MPC's final phase (one problem for every remaining time) takes the same soft box.
-    free = LimitedLookaheadMPC(task, None, 10, jit=False, steps="free")
+    free = LimitedLookaheadMPC(task, None, 10, MPCOptions(jit=False, steps="free"))
     assert free._final is not None and free._final.trans.soft_bounds_weight == 1e4
     _, info = free.act(x, 0.25)
     assert info.phase == "final" and info.success, info.status
-    free_hard = LimitedLookaheadMPC(task, None, 10, jit=False, steps="free", final_soft_weight=0)
+    free_hard = LimitedLookaheadMPC(task, None, 10, MPCOptions(jit=False, steps="free", final_soft_weight=0))
     assert free_hard._final is not None and free_hard._final.trans.soft_bounds_weight is None
 
 
@@ -547,8 +570,8 @@ def test_the_final_phase_plans_with_l_f_only_and_leaves_the_network_out_of_its_n
     task = make_task("glider")
     x = np.array([-0.38, 0.08, 1.46, -0.7, 2.48, 0.16, 1.61])
     net = ValueNetwork(7, (8,), task_name="glider", seed=0)
-    learned = LimitedLookaheadMPC(task, net, 10, jit=False)
-    plain = LimitedLookaheadMPC(task, None, 10, jit=False)
+    learned = LimitedLookaheadMPC(task, net, 10, MPCOptions(jit=False))
+    plain = LimitedLookaheadMPC(task, None, 10, MPCOptions(jit=False))
     u_learned, info = learned.act(x, 0.2)
     u_plain, _ = plain.act(x, 0.2)
     assert info.phase == "final" and info.success

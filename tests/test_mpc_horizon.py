@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 
 from seagul_control.evaluation import run_policy_episode
-from seagul_control.mpc import LimitedLookaheadMPC
+from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
 from seagul_envs import make_task
 
 #: Starts of ``rng(0).uniform(x0_low, x0_high, (40, 4))`` where the 20-step MPC missed the goal and the 10-step one
@@ -31,14 +31,14 @@ def acrobot():
 @pytest.fixture(scope="module")
 def long_mpc(acrobot):
     task, _ = acrobot
-    mpc = LimitedLookaheadMPC(task, None, 20, jit=False)
+    mpc = LimitedLookaheadMPC(task, None, 20, MPCOptions(jit=False))
     assert mpc.solver == "fatrop" and mpc.cold_guess == "best"
     return mpc
 
 
 def test_the_long_lookahead_plans_no_worse_than_the_short_one(acrobot, long_mpc):
     task, starts = acrobot
-    short = LimitedLookaheadMPC(task, None, 10, jit=False)
+    short = LimitedLookaheadMPC(task, None, 10, MPCOptions(jit=False))
     for x in starts:
         short.reset()
         long_mpc.reset()
@@ -60,12 +60,12 @@ def test_the_long_lookahead_reaches_the_goal(acrobot, long_mpc):
 
 def test_cold_guess_best_adds_the_line_only_where_it_differs(acrobot):
     task, starts = acrobot
-    long_mpc = LimitedLookaheadMPC(task, None, 20, jit=False, cold_guess="best")
-    short = LimitedLookaheadMPC(task, None, 5, jit=False, cold_guess="best")
+    long_mpc = LimitedLookaheadMPC(task, None, 20, MPCOptions(jit=False, cold_guess="best"))
+    short = LimitedLookaheadMPC(task, None, 5, MPCOptions(jit=False, cold_guess="best"))
     x = starts[0]
     assert len(long_mpc._lookahead.cold_alternatives(x, task.tau_nominal, long_mpc.dt, "best")) == 1
     assert long_mpc._lookahead.cold_alternatives(x, task.tau_nominal, long_mpc.dt, "rollout") == []
     # The condensed solver reads only the inputs (zero in both guesses) and has its own extra starts.
     assert short._lookahead.cold_alternatives(x, task.tau_nominal, short.dt, "best") == []
     with pytest.raises(ValueError, match="cold_guess must be"):
-        LimitedLookaheadMPC(task, None, 5, jit=False, cold_guess="goal")
+        LimitedLookaheadMPC(task, None, 5, MPCOptions(jit=False, cold_guess="goal"))

@@ -7,9 +7,9 @@ import casadi as ca
 import numpy as np
 import pytest
 
-from seagul_control.mpc import LimitedLookaheadMPC
+from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
 from seagul_control.shooting import BufferedFunction, ShootingSolver
-from seagul_control.transcription import Transcription
+from seagul_control.transcription import Transcription, TranscriptionOptions
 from seagul_envs import make_task
 
 
@@ -21,8 +21,8 @@ def test_shooting_solves_the_lifted_nlp_to_the_same_optimum_with_its_multipliers
     """Input bounds only (the acrobot's lookahead): the condensed problem's optimum is IPOPT's on the lifted NLP,
     with the same states, defect multipliers (costates) and dV/dp (envelope theorem)."""
     task = make_task("acrobot")
-    shooting = Transcription(task, 5, step=0.1, final_box=False, solver="shooting")
-    ipopt = Transcription(task, 5, step=0.1, final_box=False, solver="ipopt")
+    shooting = Transcription(task, 5, TranscriptionOptions(step=0.1, final_box=False, solver="shooting"))
+    ipopt = Transcription(task, 5, TranscriptionOptions(step=0.1, final_box=False, solver="ipopt"))
     for x, tau in zip(_starts(task, 4), (3.0, 2.0, 4.5, 0.8), strict=True):
         a, b = shooting.solve(x, tau), ipopt.solve(x, tau)
         assert a.success and b.success and a.status == "Success"
@@ -37,8 +37,8 @@ def test_shooting_solves_the_lifted_nlp_to_the_same_optimum_with_its_multipliers
 
 def test_active_input_bounds_are_kept_and_reported_as_bound_multipliers():
     task = make_task("acrobot")
-    tight = Transcription(task, 5, step=0.1, final_box=False, solver="shooting")
-    ipopt = Transcription(task, 5, step=0.1, final_box=False, solver="ipopt")
+    tight = Transcription(task, 5, TranscriptionOptions(step=0.1, final_box=False, solver="shooting"))
+    ipopt = Transcription(task, 5, TranscriptionOptions(step=0.1, final_box=False, solver="ipopt"))
     for tr in (tight, ipopt):
         for k in range(5):
             tr.set(k, "lbu", -1.0)
@@ -54,7 +54,7 @@ def test_active_input_bounds_are_kept_and_reported_as_bound_multipliers():
 
 def test_condensed_gradient_and_hessian_match_finite_differences():
     task = make_task("acrobot")
-    tr = Transcription(task, 5, step=0.1, final_box=False, solver="shooting")
+    tr = Transcription(task, 5, TranscriptionOptions(step=0.1, final_box=False, solver="shooting"))
     solver = tr._shooting
     x = _starts(task, 1, 3)[0]
     p = np.concatenate([x, [2.5]])
@@ -113,9 +113,9 @@ def test_mpc_on_the_shooting_solver_plans_optima_of_the_lifted_nlp():
     net = ValueNetwork(4, (16, 16), task_name="acrobot", seed=0)
     # values of a few units beside the "lqr" prior: plans stay near the goal, where IPOPT converges reliably
     net.set_normalization(task.sample_x0(rng, 64), rng.uniform(0, 5, 64), rng.uniform(0, 3, 64))
-    options = {"trust_region": "lqr", "goal_blend": 1.0, "jit": False}
-    shooting = LimitedLookaheadMPC(task, net, 5, solver="shooting", **options)
-    lifted = LimitedLookaheadMPC(task, net, 5, solver="ipopt", max_iter=300, **options)
+    options = MPCOptions(trust_region="lqr", goal_blend=1.0, jit=False)
+    shooting = LimitedLookaheadMPC(task, net, 5, options.replace(solver="shooting"))
+    lifted = LimitedLookaheadMPC(task, net, 5, options.replace(solver="ipopt", max_iter=300))
     assert shooting._lookahead.trans.solver_name == "shooting"
     x, tau = task.goal + np.array([0.2, -0.2, 0.3, 0.0]), 5.0
     u_cold, _ = lifted.act(x, tau)
@@ -138,24 +138,36 @@ def test_mpc_on_the_shooting_solver_plans_optima_of_the_lifted_nlp():
 def test_shooting_refuses_what_it_cannot_solve_by_name():
     glider = make_task("glider")
     with pytest.raises(ValueError, match=r"shooting.*free steps"):
-        Transcription(glider, 10, solver="shooting")
+        Transcription(glider, 10, TranscriptionOptions(solver="shooting"))
     with pytest.raises(ValueError, match="finite state bounds"):
-        Transcription(glider, 10, free_time=False, step=0.025, solver="shooting")
+        Transcription(glider, 10, TranscriptionOptions(free_time=False, step=0.025, solver="shooting"))
     acrobot = make_task("acrobot")
     with pytest.raises(ValueError, match=r"does not take option .ipopt\.tol."):
-        Transcription(acrobot, 5, step=0.1, final_box=False, solver="shooting", solver_options={"ipopt.tol": 1e-6})
+        Transcription(
+            acrobot,
+            5,
+            TranscriptionOptions(step=0.1, final_box=False, solver="shooting", solver_options={"ipopt.tol": 1e-6}),
+        )
     with pytest.raises(ValueError, match="unknown shooting solver option"):
-        Transcription(acrobot, 5, step=0.1, final_box=False, solver="shooting", solver_options={"shooting.foo": 1})
+        Transcription(
+            acrobot,
+            5,
+            TranscriptionOptions(step=0.1, final_box=False, solver="shooting", solver_options={"shooting.foo": 1}),
+        )
     with pytest.raises(ValueError, match="solver must be"):
-        LimitedLookaheadMPC(acrobot, None, 5, solver="sqp", jit=False)  # type: ignore[arg-type]
+        LimitedLookaheadMPC(acrobot, None, 5, MPCOptions(solver="sqp", jit=False))  # type: ignore[arg-type]
 
 
 def test_iteration_limit_is_a_reported_failure_and_the_mpc_falls_back():
     task = make_task("acrobot")
-    tr = Transcription(task, 5, step=0.1, final_box=False, solver="shooting", solver_options={"shooting.max_iter": 1})
+    tr = Transcription(
+        task,
+        5,
+        TranscriptionOptions(step=0.1, final_box=False, solver="shooting", solver_options={"shooting.max_iter": 1}),
+    )
     sol = tr.solve(task.goal + np.array([0.3, 0.3, 0.0, 0.0]), 3.0)
     assert not sol.success and sol.status == "Maximum_Iterations_Exceeded" and sol.iterations == 1
-    mpc = LimitedLookaheadMPC(task, None, 5, solver="shooting", max_iter=0, multistart="never", jit=False)
+    mpc = LimitedLookaheadMPC(task, None, 5, MPCOptions(solver="shooting", max_iter=0, multistart="never", jit=False))
     u, info = mpc.act(task.goal + np.array([0.3, 0.3, 0.0, 0.0]), 3.0)
     assert not info.success and info.source in ("lqr", "zero") and np.all(np.isfinite(u))
 
@@ -188,9 +200,11 @@ def test_compiled_shooting_mpc_is_the_interpreted_one(tmp_path):
     vf = ValueEnsemble(4, (8,), 2, 0.5, task_name="acrobot", seed=3)
     for net in vf.networks:
         net.set_normalization(task.sample_x0(rng, 64), rng.uniform(0, 5, 64), rng.uniform(0, 3, 64))
-    options = {"trust_region": "lqr", "goal_blend": 1.0, "solver": "shooting"}
-    compiled = LimitedLookaheadMPC(task, vf, 5, jit=True, jit_cache_dir=tmp_path, jit_flags=("-O0",), **options)
-    interpreted = LimitedLookaheadMPC(task, vf, 5, jit=False, **options)
+    options = MPCOptions(trust_region="lqr", goal_blend=1.0, solver="shooting")
+    compiled = LimitedLookaheadMPC(
+        task, vf, 5, options.replace(jit=True, jit_cache_dir=str(tmp_path), jit_flags=("-O0",))
+    )
+    interpreted = LimitedLookaheadMPC(task, vf, 5, options.replace(jit=False))
     assert compiled._lookahead.trans.codegen_library is not None
     x, tau = task.goal + np.array([0.2, -0.1, 0.0, 0.3]), 5.0
     for _ in range(3):
@@ -233,9 +247,9 @@ def test_extra_starts_find_the_lower_minimum_and_keep_the_given_one_on_ties():
 def test_mpc_with_extra_starts_plans_no_worse_than_without():
     """``solver_options={"shooting.starts": 2}``: every step's plan costs at most the single-start plan's."""
     task = make_task("acrobot")
-    options = {"solver": "shooting", "warm_start": False, "jit": False, "multistart": "never"}
-    plain = LimitedLookaheadMPC(task, None, 5, **options)
-    multi = LimitedLookaheadMPC(task, None, 5, solver_options={"shooting.starts": 2}, **options)
+    options = MPCOptions(solver="shooting", warm_start=False, jit=False, multistart="never")
+    plain = LimitedLookaheadMPC(task, None, 5, options)
+    multi = LimitedLookaheadMPC(task, None, 5, options.replace(solver_options={"shooting.starts": 2}))
     for x in _starts(task, 8, seed=3):
         _, a = plain.act(x, 3.0)
         _, b = multi.act(x, 3.0)
@@ -246,25 +260,29 @@ def test_mpc_with_extra_starts_plans_no_worse_than_without():
 
 def test_mpc_multistart_modes_and_their_refusals():
     task = make_task("acrobot")
-    assert LimitedLookaheadMPC(task, None, 5, jit=False).multistart == "rise"  # the condensed solver's default
-    assert LimitedLookaheadMPC(task, None, 5, solver="fatrop", jit=False).multistart == "never"
+    assert (
+        LimitedLookaheadMPC(task, None, 5, MPCOptions(jit=False)).multistart == "rise"
+    )  # the condensed solver's default
+    assert LimitedLookaheadMPC(task, None, 5, MPCOptions(solver="fatrop", jit=False)).multistart == "never"
     with pytest.raises(ValueError, match="multistart='rise' needs solver='shooting'"):
-        LimitedLookaheadMPC(task, None, 5, solver="fatrop", multistart="rise", jit=False)
+        LimitedLookaheadMPC(task, None, 5, MPCOptions(solver="fatrop", multistart="rise", jit=False))
     with pytest.raises(ValueError, match="multistart must be"):
-        LimitedLookaheadMPC(task, None, 5, multistart="sometimes", jit=False)  # type: ignore[arg-type]
+        LimitedLookaheadMPC(task, None, 5, MPCOptions(multistart="sometimes", jit=False))  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="multistart_starts"):
-        LimitedLookaheadMPC(task, None, 5, multistart_starts=0, jit=False)
+        LimitedLookaheadMPC(task, None, 5, MPCOptions(multistart_starts=0, jit=False))
     with pytest.raises(ValueError, match="extra starts need the condensed solver"):
-        Transcription(task, 5, step=0.1, final_box=False, solver="ipopt").solve(task.goal, 3.0, starts=2)
+        Transcription(task, 5, TranscriptionOptions(step=0.1, final_box=False, solver="ipopt")).solve(
+            task.goal, 3.0, starts=2
+        )
 
 
 def test_rise_multistart_runs_the_extra_starts_when_the_plan_costs_more_than_the_last():
     """``multistart="rise"``: extra starts at a cold start and when the warm-started plan costs more than the last
     step's plan promised; then the plan is the "always" MPC's (the lowest over the same starts)."""
     task = make_task("acrobot")
-    rise = LimitedLookaheadMPC(task, None, 5, jit=False)
-    always = LimitedLookaheadMPC(task, None, 5, multistart="always", jit=False)
-    never = LimitedLookaheadMPC(task, None, 5, multistart="never", jit=False)
+    rise = LimitedLookaheadMPC(task, None, 5, MPCOptions(jit=False))
+    always = LimitedLookaheadMPC(task, None, 5, MPCOptions(multistart="always", jit=False))
+    never = LimitedLookaheadMPC(task, None, 5, MPCOptions(multistart="never", jit=False))
     x, tau = task.goal + np.array([0.4, -0.3, 0.5, 0.0]), 4.0
     _, first = rise.act(x, tau)
     assert first.extra_starts == 2 and never.act(x, tau)[1].extra_starts == 0

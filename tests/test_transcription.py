@@ -9,7 +9,8 @@ import numpy as np
 import pytest
 
 import seagul_control.transcription as tr_mod
-from seagul_control.transcription import STAGE_FIELDS, Transcription
+from seagul_control import codegen
+from seagul_control.transcription import STAGE_FIELDS, Transcription, TranscriptionOptions
 from seagul_envs.tasks import make_task
 
 ACROBOT_X = np.array([np.pi - 0.2, 0.15, 0.3, -0.2])
@@ -20,7 +21,7 @@ GLIDER_X = np.array([-3.5, 0.1, 0.0, 0.0, 7.0, 0.0, 0.0])
 def test_interpreted_compiled_ipopt_and_fatrop_agree(name: str) -> None:
     task = make_task(name)
     x = ACROBOT_X if name == "acrobot" else GLIDER_X
-    ref = Transcription(task, solver="ipopt", codegen=False).solve(x, task.tau_nominal)
+    ref = Transcription(task, options=TranscriptionOptions(solver="ipopt", codegen=False)).solve(x, task.tau_nominal)
     assert ref.success
     # Same problem, same optimum: every variant starts from a perturbed copy of the reference solution. fatrop is
     # checked on the acrobot only: on the glider it needs the kinematic guess (even this guess stalls it at
@@ -28,7 +29,9 @@ def test_interpreted_compiled_ipopt_and_fatrop_agree(name: str) -> None:
     guess = ref.primal * (1 + 1e-3 * np.random.default_rng(0).standard_normal(ref.primal.size))
     variants = [("ipopt", False), ("ipopt", True)] + ([("fatrop", True)] if name == "acrobot" else [])
     sols = [
-        Transcription(task, solver=solver, codegen=codegen).solve(x, task.tau_nominal, guess=guess)
+        Transcription(task, options=TranscriptionOptions(solver=solver, codegen=codegen)).solve(
+            x, task.tau_nominal, guess=guess
+        )
         for solver, codegen in variants
     ]
     for sol in sols:
@@ -41,7 +44,7 @@ def test_interpreted_compiled_ipopt_and_fatrop_agree(name: str) -> None:
 
 def test_free_time_state_and_time_modes() -> None:
     task = make_task("glider")
-    tr = Transcription(task, codegen=True)
+    tr = Transcription(task, options=TranscriptionOptions(codegen=True))
     sol = tr.solve(GLIDER_X, 0.8)
     assert sol.success
     assert sol.steps.sum() == pytest.approx(0.8, abs=1e-9)
@@ -49,14 +52,16 @@ def test_free_time_state_and_time_modes() -> None:
     # IPOPT relaxes bounds by 1e-8 (bound_relax_factor).
     assert np.all(sol.steps >= task.step_bounds[0] - 1e-7) and np.all(sol.steps <= task.step_bounds[1] + 1e-7)
     # A short lookahead with sum(h) <= tau (the MPC's problem): the terminal cost sees tau - sum(h) >= 0.
-    short = Transcription(task, 10, time_mode="at_most", final_box=False, solver="fatrop").solve(GLIDER_X, 0.8)
+    short = Transcription(task, 10, TranscriptionOptions(time_mode="at_most", final_box=False, solver="fatrop")).solve(
+        GLIDER_X, 0.8
+    )
     assert short.success and short.steps.sum() <= 0.8 + 1e-9
 
 
 def test_fixed_step_mpc_horizon() -> None:
     """The MPC's use: a few intervals of the control period, no terminal box."""
     task = make_task("acrobot")
-    tr = Transcription(task, 5, free_time=False, step=0.1, final_box=False, solver="fatrop")
+    tr = Transcription(task, 5, TranscriptionOptions(free_time=False, step=0.1, final_box=False, solver="fatrop"))
     sol = tr.solve(ACROBOT_X, 5.0)
     assert sol.success
     np.testing.assert_allclose(sol.steps, 0.1)
@@ -82,21 +87,23 @@ def test_pack_guess_round_trip() -> None:
 
 def test_codegen_library_is_cached(tmp_path) -> None:
     task = make_task("acrobot")
-    a = Transcription(task, 1, free_time=False, step=0.1, codegen=True, codegen_dir=tmp_path)
+    a = Transcription(task, 1, TranscriptionOptions(free_time=False, step=0.1, codegen=True, codegen_dir=tmp_path))
     lib = a.codegen_library
     assert lib is not None and lib.parent == tmp_path and lib.is_file()
     mtime = lib.stat().st_mtime_ns
-    b = Transcription(task, 1, free_time=False, step=0.1, codegen=True, codegen_dir=tmp_path)
+    b = Transcription(task, 1, TranscriptionOptions(free_time=False, step=0.1, codegen=True, codegen_dir=tmp_path))
     assert b.codegen_library == lib and lib.stat().st_mtime_ns == mtime  # loaded, not recompiled
-    c = Transcription(task, 2, free_time=False, step=0.1, codegen=True, codegen_dir=tmp_path)
+    c = Transcription(task, 2, TranscriptionOptions(free_time=False, step=0.1, codegen=True, codegen_dir=tmp_path))
     assert c.codegen_library != lib  # another problem, another key
     assert a.solve(ACROBOT_X, 0.1).objective == pytest.approx(b.solve(ACROBOT_X, 0.1).objective, rel=1e-12)
 
 
 def test_no_compiler_falls_back_to_interpreted(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
-    monkeypatch.setattr(tr_mod, "find_c_compiler", lambda: None)
+    monkeypatch.setattr(codegen, "find_c_compiler", lambda: None)
     with pytest.warns(UserWarning, match="code generation unavailable"):
-        tr = Transcription(make_task("acrobot"), 3, free_time=False, step=0.1, codegen=True, codegen_dir=tmp_path)
+        tr = Transcription(
+            make_task("acrobot"), 3, TranscriptionOptions(free_time=False, step=0.1, codegen=True, codegen_dir=tmp_path)
+        )
     assert tr.codegen_library is None
     assert tr.solve(ACROBOT_X, 0.3).success
 
@@ -105,10 +112,10 @@ def test_bad_arguments_raise() -> None:
     task = make_task("acrobot")
     with pytest.raises(ValueError, match="horizon"):
         Transcription(task, 0)
-    with pytest.raises(ValueError, match="unknown solver"):
-        Transcription(task, solver="snopt")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"TranscriptionOptions\.solver must be one of 'ipopt', 'fatrop', 'shooting'"):
+        Transcription(task, options=TranscriptionOptions(solver="snopt"))  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="time_mode"):
-        Transcription(task, time_mode="sometimes")  # type: ignore[arg-type]
+        Transcription(task, options=TranscriptionOptions(time_mode="sometimes"))  # type: ignore[arg-type]
 
 
 # ------------------------------------------------------------------------------------ per-stage set / get
@@ -136,12 +143,12 @@ def test_index_maps_are_public_read_only_and_match_the_layout() -> None:
     np.testing.assert_array_equal(np.sort(every), np.arange(tr.num_variables))  # each variable exactly once
     with pytest.raises(ValueError, match="read-only"):
         tr.state_index[0, 0] = 3
-    fixed = Transcription(make_task("acrobot"), 3, free_time=False, step=0.1)
+    fixed = Transcription(make_task("acrobot"), 3, TranscriptionOptions(free_time=False, step=0.1))
     assert fixed.step_index.size == 0 and fixed.time_index.size == 0
 
 
 def test_set_validates_stage_field_and_shape() -> None:
-    tr = Transcription(make_task("acrobot"), 3, free_time=False, step=0.1, final_box=False)
+    tr = Transcription(make_task("acrobot"), 3, TranscriptionOptions(free_time=False, step=0.1, final_box=False))
     for stage in (-1, 4, 1.0, True, "0", None):
         with pytest.raises(ValueError, match=r"stage of field 'lbx' must be an integer in 0\.\.3"):
             tr.set(stage, "lbx", np.zeros(4))  # type: ignore[arg-type]
@@ -179,7 +186,7 @@ def test_set_validates_stage_field_and_shape() -> None:
 
 def test_set_bounds_are_what_the_solver_sees() -> None:
     task = make_task("acrobot")
-    tr = Transcription(task, 5, free_time=False, step=0.1, final_box=False)
+    tr = Transcription(task, 5, TranscriptionOptions(free_time=False, step=0.1, final_box=False))
     free = tr.solve(ACROBOT_X, 5.0)
     assert free.success and abs(free.controls[0, 0]) > 0.5  # the unconstrained plan pushes harder than 0.5
     cap = 0.5 * np.sign(free.controls[0, 0])
@@ -197,7 +204,7 @@ def test_set_bounds_are_what_the_solver_sees() -> None:
     assert sol.controls[0, 0] == pytest.approx(cap, abs=1e-6)  # the bound is active
     assert tr.solve(ACROBOT_X, 5.0).controls[0, 0] == pytest.approx(cap, abs=1e-6)  # bounds persist
     # A state box: pin x_3 (to a reachable point, the unconstrained plan's).
-    pinned = Transcription(task, 5, free_time=False, step=0.1, final_box=False)
+    pinned = Transcription(task, 5, TranscriptionOptions(free_time=False, step=0.1, final_box=False))
     pinned.set(3, "lbx", free.states[3])
     pinned.set(3, "ubx", free.states[3])
     spy = _SolverSpy(pinned._solver)
@@ -213,7 +220,7 @@ def test_set_bounds_are_what_the_solver_sees() -> None:
 
 def test_free_step_bounds_and_stored_guess() -> None:
     task = make_task("glider")
-    tr = Transcription(task, 6, time_mode="at_most", final_box=False)
+    tr = Transcription(task, 6, TranscriptionOptions(time_mode="at_most", final_box=False))
     tr.set(0, "lbh", 0.02)
     tr.set(0, "ubh", 0.02)
     assert tr.get(0, "lbh").tolist() == [0.02] and tr.get(1, "ubh").tolist() == [task.step_bounds[1]]
@@ -237,7 +244,7 @@ def test_free_step_bounds_and_stored_guess() -> None:
     tr.solve(GLIDER_X, 0.15)
     np.testing.assert_array_equal(spy.calls[-1]["x0"], tr.line_guess(GLIDER_X, 0.15))  # back to the default
     # A partial guess starts from the zero guess of pack_guess.
-    fresh = Transcription(task, 2, time_mode="at_most", final_box=False)
+    fresh = Transcription(task, 2, TranscriptionOptions(time_mode="at_most", final_box=False))
     fresh.set(0, "u", [1.5])
     zero = fresh.pack_guess(np.zeros((3, 7)), np.zeros((2, 1)))
     zero[fresh.control_index[0]] = 1.5
@@ -263,7 +270,7 @@ def test_one_cache_directory_for_compiled_code_and_data(monkeypatch: pytest.Monk
     if tr_mod.find_c_compiler() is not None:
         options = tr_mod.jit_solver_options()
         assert options is not None and str(tmp_path / "mine") in options["jit_options"]["compiler"]
-        assert (tmp_path / "mine" / "seagul_cc.py").read_text() == tr_mod._CC_WRAPPER
+        assert (tmp_path / "mine" / "seagul_cc.py").read_text() == codegen._CC_WRAPPER
 
 
 def test_io_helpers_import_neither_torch_nor_casadi() -> None:

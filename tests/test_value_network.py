@@ -242,10 +242,10 @@ def test_network_over_robots_renormalizes_saves_and_names_bad_input(tmp_path):
 
 
 def test_the_mpc_plans_with_a_network_over_robots_at_its_condition():
-    from seagul_control import LimitedLookaheadMPC
+    from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
 
     task, net, _ = _robot_net(2)
-    mpc = LimitedLookaheadMPC(task, net, 5, jit=False)
+    mpc = LimitedLookaheadMPC(task, net, 5, MPCOptions(jit=False))
     u, info = mpc.act(np.array([np.pi - 0.2, 0.1, 0.0, 0.0]), 5.0)
     assert info.success and np.all(np.abs(u) <= task.u_high)
     # The MPC evaluates the value at the robot it plans for (the task's own), whatever the network's condition ...
