@@ -43,7 +43,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-#: Options of the ``"shooting"`` solver (``Transcription(solver_options={"shooting.<name>": value})``).
+#: Options of the ``"shooting"`` solver (``TranscriptionOptions(solver_options={"shooting.<name>": value})``).
 SHOOTING_DEFAULTS: dict[str, float] = {
     "max_iter": 50,
     "tol": 1e-6,

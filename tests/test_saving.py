@@ -226,6 +226,23 @@ def test_an_ensemble_and_no_value_function_round_trip(acrobot, tmp_path: Path) -
         np.testing.assert_allclose(_first_actions(loaded, starts, 3.0), _first_actions(mpc, starts, 3.0), atol=1e-9)
 
 
+def test_a_value_function_over_robots_is_conditioned_after_loading(acrobot, tmp_path: Path) -> None:
+    """``set_robot`` of a loaded MPC conditions the saved value function as the network's ``condition`` did."""
+    rng = np.random.default_rng(4)
+    net = ValueNetwork(4, (8,), task_name="acrobot", seed=0, n_params=6, theta=acrobot.theta)
+    robots = acrobot.theta + rng.uniform(-0.05, 0.05, (64, 6))
+    net.set_normalization(acrobot.sample_x0(rng, 64), rng.uniform(0, 5, 64), rng.uniform(0, 5, 64), robots)
+    mpc = LimitedLookaheadMPC(acrobot, net, 5, FAST, model_params=True)
+    loaded = LimitedLookaheadMPC.load(mpc.save(tmp_path / "robots.zip"))
+    assert loaded.model_params and loaded.value_function is not None and loaded.value_function.n_params == 6
+    x = _starts(acrobot, 1)
+    for robot in (1.05 * acrobot.theta, None):
+        mpc.set_robot(robot)
+        loaded.set_robot(robot)
+        assert loaded.terminal_cost_value(x[0], 2.0) == pytest.approx(mpc.terminal_cost_value(x[0], 2.0), rel=1e-12)
+        np.testing.assert_allclose(_first_actions(loaded, x, 3.0), _first_actions(mpc, x, 3.0), atol=1e-9)
+
+
 def test_full_horizon_mpc_round_trip(acrobot, tmp_path: Path) -> None:
     full = FullHorizonMPC(acrobot, FullHorizonOptions(max_iter=200))
     path = full.save(tmp_path / "full.zip")
