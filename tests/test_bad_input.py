@@ -22,11 +22,14 @@ from hypothesis import strategies as st
 from hypothesis.extra import numpy as hnp
 
 import seagul_envs
+from seagul_control.lqr import LQRPolicy
+from seagul_control.mpc import FullHorizonMPC, LimitedLookaheadMPC
 from seagul_envs import ENV_IDS, make_task
 from seagul_learn.cli import main
 from seagul_learn.dataset import Dataset, DatasetError
 from seagul_learn.parallel import solve_many
 from seagul_learn.training import TrainConfig
+from seagul_learn.trajopt import GUESS_NAMES, TrajectoryOptimizer
 from seagul_learn.value_network import ValueNetwork, ValueNetworkFileError
 
 # Modest example counts: the whole file must stay well under 30 s on a loaded 2-core machine.
@@ -48,8 +51,6 @@ def _env(env_id: str, copy: int = 0) -> Any:
 
 
 def _optimizer(task_name: str) -> Any:
-    from seagul_learn.trajopt import TrajectoryOptimizer
-
     if task_name not in _OPTIMIZERS:
         _OPTIMIZERS[task_name] = TrajectoryOptimizer(task_name)
     return _OPTIMIZERS[task_name]
@@ -216,8 +217,6 @@ def test_trajopt_solve_rejects_tau_outside_T0(tau: float) -> None:
 
 
 def test_trajopt_options_are_checked() -> None:
-    from seagul_learn.trajopt import GUESS_NAMES, TrajectoryOptimizer
-
     with pytest.raises(ValueError, match=r"horizon must be >= 1 interval, got 0"):
         TrajectoryOptimizer("acrobot", horizon=0)
     with pytest.raises(ValueError, match=r"max_iter must be >= 1"):
@@ -278,11 +277,6 @@ def test_solve_many_rejects_bad_workers_backend_and_options() -> None:
 
 # ------------------------------------------------------------------------------------ MPC and LQR observations
 def _policies() -> list[Any]:
-    try:
-        from seagul_control.lqr import LQRPolicy
-        from seagul_control.mpc import LimitedLookaheadMPC
-    except ImportError as exc:  # the MPC module is still being written by its owner
-        pytest.skip(f"seagul_control.mpc/lqr not importable yet: {exc}")
     task = make_task("acrobot")
     return [LQRPolicy(task), LimitedLookaheadMPC(task, None, 5, jit=False)]
 
@@ -303,9 +297,6 @@ def test_policy_observations_are_checked() -> None:
 
 
 def test_mpc_horizon_must_be_at_least_one() -> None:
-    _policies()  # skips if the module is not importable yet
-    from seagul_control.mpc import FullHorizonMPC, LimitedLookaheadMPC
-
     task = make_task("acrobot")
     for horizon in (0, -3, 2.5):
         with pytest.raises(ValueError, match=rf"horizon must be an integer >= 1 step, got {horizon}"):

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 import seagul_envs  # noqa: F401  (registers the envs)
-from seagul_control.evaluation import heldout_starts, start_grid
+from seagul_control.evaluation import EpisodeResult, heldout_starts, start_grid, success_at, tolerance_reached
+from seagul_envs import make_task
 from seagul_envs.wrappers import LearnerView, learner_env
 from seagul_learn.baselines import (
     SB3Config,
@@ -168,8 +169,6 @@ def test_zero_input_floor_and_heldout_starts():
 
 
 def test_success_rule_scaled_and_the_scale_a_final_state_needs():
-    from seagul_envs import make_task
-
     acrobot = make_task("acrobot")
     rule = acrobot.profile.success
     x = acrobot.goal + np.array([0.06, 0.0, 0.0, 0.0])
@@ -190,9 +189,6 @@ def test_success_rule_scaled_and_the_scale_a_final_state_needs():
 
 def test_success_at_rescales_the_rule_and_the_tolerance_reached_is_its_threshold():
     """The baselines table's tolerances (``seagul_control.evaluation``; the benchmark imports them)."""
-    from seagul_control.evaluation import EpisodeResult, success_at, tolerance_reached
-    from seagul_envs import make_task
-
     task = make_task("acrobot")
     episodes = [
         {"final_state": list(task.goal + np.array([d, 0, 0, 0])), "terminated": False} for d in (0.01, 0.07, 0.3, 2.0)

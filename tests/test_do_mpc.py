@@ -11,7 +11,7 @@ import pytest
 pytest.importorskip("do_mpc", reason="do-mpc is an optional extra: pip install 'seagul[anchors]'")
 
 from seagul_control.do_mpc_policy import INSTALL_HINT, DoMPCPolicy
-from seagul_control.evaluation import run_policy_episode
+from seagul_control.evaluation import POLICY_KINDS, PolicySpec, build_policy, evaluate, run_policy_episode
 from seagul_control.mpc import LimitedLookaheadMPC
 from seagul_envs import make_task
 
@@ -100,8 +100,6 @@ def test_missing_extra_names_the_install_command(monkeypatch, acrobot):
 
 
 def test_the_do_mpc_policy_kind_builds_it_for_an_evaluation(acrobot):
-    from seagul_control.evaluation import POLICY_KINDS, PolicySpec, build_policy, evaluate
-
     assert "do-mpc" in POLICY_KINDS
     spec = PolicySpec("do-mpc", "do-mpc-3", None, (("horizon", 3),))
     policy = build_policy(acrobot, spec)

@@ -11,6 +11,8 @@ from pathlib import Path
 
 import pytest
 
+import seagul_learn
+
 ROOT = Path(__file__).resolve().parents[1]
 #: The markers around README's generated results table (``BEGIN, END`` of scripts/make_results.py).
 RESULTS_BEGIN, RESULTS_END = "<!-- results:begin -->", "<!-- results:end -->"
@@ -138,8 +140,6 @@ def test_nothing_in_the_repository_narrates_its_development():
 
 
 def test_changelog_follows_keep_a_changelog():
-    import seagul_learn
-
     text = (ROOT / "CHANGELOG.md").read_text()
     versions = re.findall(r"^## \[(\d+\.\d+\.\d+)\] - \d{4}-\d{2}-\d{2}$", text, re.MULTILINE)
     assert versions, "no version sections"

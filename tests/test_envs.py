@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import ast
+import dataclasses
 import pickle
 import re
 import warnings
+from pathlib import Path
 from typing import Any
 
 import gymnasium as gym
@@ -13,7 +16,12 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import seagul_envs
-from seagul_envs import ENV_IDS
+from seagul_envs import ENV_IDS, registration
+from seagul_envs.envs import task_env
+from seagul_envs.envs.acrobot import AcrobotEnv
+from seagul_envs.envs.task_env import TaskEnv
+from seagul_envs.registration import env_class_for
+from seagul_envs.tasks import AcrobotParams, make_acrobot_task
 
 IDS = list(ENV_IDS)
 
@@ -387,21 +395,12 @@ def test_time_to_go_from_a_float32_observation_is_accepted(env_id: str) -> None:
 
 
 def test_custom_task_must_match_the_env() -> None:
-    from seagul_envs.envs.acrobot import AcrobotEnv
-
     with pytest.raises(ValueError, match="AcrobotEnv simulates AcrobotParams systems; task 'glider'"):
         AcrobotEnv(task=seagul_envs.make_task("glider"))
 
 
 def test_a_renamed_variant_of_a_builtin_system_gets_its_env_by_parameter_class() -> None:
     """The built-in env is chosen by the task's ``profile.env_id`` and parameter class, never by its name."""
-    import dataclasses
-
-    from seagul_envs.envs.acrobot import AcrobotEnv
-    from seagul_envs.envs.task_env import TaskEnv
-    from seagul_envs.registration import env_class_for
-    from seagul_envs.tasks import AcrobotParams, make_acrobot_task
-
     heavy = dataclasses.replace(make_acrobot_task(AcrobotParams(m2=1.5)), name="acrobot_heavy")
     assert env_class_for(heavy) is AcrobotEnv
     env = seagul_envs.make_env(heavy)
@@ -422,11 +421,6 @@ def test_step_before_reset_raises(env_id: str) -> None:
 def test_one_registry_module_and_no_env_module_imports_it() -> None:
     """``seagul_envs.registration`` holds the ids, ``register_task`` and the task -> env lookup (``make_env``,
     ``env_class_for``); the env modules never import it, so there is no import cycle to break with a local import."""
-    import ast
-    from pathlib import Path
-
-    from seagul_envs import registration
-
     assert seagul_envs.make_env is registration.make_env and seagul_envs.register_task is registration.register_task
     envs_dir = Path(seagul_envs.__file__).parent / "envs"
     for path in sorted(envs_dir.glob("*.py")):
@@ -443,9 +437,6 @@ def test_one_registry_module_and_no_env_module_imports_it() -> None:
 
 @pytest.mark.parametrize("name", ["make_env", "env_class_for"])
 def test_the_moved_task_env_names_still_work_with_a_warning(name: str) -> None:
-    from seagul_envs import registration
-    from seagul_envs.envs import task_env
-
     with pytest.warns(DeprecationWarning, match=rf"seagul_envs\.envs\.task_env\.{name} is deprecated"):
         old = getattr(task_env, name)
     assert old is getattr(registration, name)

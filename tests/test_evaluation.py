@@ -6,23 +6,34 @@ Episodes are run by :mod:`seagul_control.evaluation` (data only, no matplotlib);
 
 from __future__ import annotations
 
+import argparse
 import json
 import subprocess
 import sys
 import textwrap
 
+import gymnasium as gym
 import numpy as np
 import pytest
 
+import seagul_control.evaluation as ev
+import seagul_envs  # noqa: F401  (registers the envs)
 from seagul_control.evaluation import (
     EpisodeResult,
     PolicySpec,
+    build_policy,
     evaluate,
     is_success,
+    run_policy_episode,
     start_grid,
 )
+from seagul_control.lqr import LQRPolicy
+from seagul_control.mpc import FullHorizonMPC
 from seagul_envs import make_task
-from seagul_learn import report
+from seagul_learn import policies, report
+from seagul_learn.cli import main
+from seagul_learn.commands.evaluate import add_arguments, specs_from_args
+from seagul_learn.policies import SB3Policy
 from seagul_learn.report import summarize, write_outputs
 
 MOVED = ("summarize", "write_outputs", "plot_heatmaps", "plot_glider_trajectories")
@@ -83,11 +94,8 @@ def test_glider_trajectory_figure(tmp_path):
 
 
 def test_saved_sb3_model_with_vecnormalize_stats(tmp_path):
-    import gymnasium as gym
-    from stable_baselines3 import PPO
+    from stable_baselines3 import PPO  # stable-baselines3 is imported by the tests that train a model
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
-
-    import seagul_envs  # noqa: F401
 
     venv = VecNormalize(DummyVecEnv([lambda: gym.make("SeagulAcrobot-v0")]))
     model = PPO("MlpPolicy", venv, n_steps=64, batch_size=32, seed=0, device="cpu")
@@ -98,8 +106,6 @@ def test_saved_sb3_model_with_vecnormalize_stats(tmp_path):
     spec = PolicySpec("sb3", "ppo", str(tmp_path / "model.zip"))
     results = evaluate("acrobot", [spec], starts, progress=False)
     assert results[0].steps == 50 and np.isfinite(results[0].cost)
-    from seagul_control.evaluation import build_policy
-
     assert build_policy("acrobot", spec).normalizer is not None
 
 
@@ -133,9 +139,6 @@ def test_policy_spec_errors():
 def test_each_kind_names_its_builder_by_module_path_and_the_learned_ones_live_in_seagul_learn(tmp_path):
     """The control kinds are built by ``seagul_control``; an ``"mpc"`` spec with a network file and an ``"sb3"``
     spec by :mod:`seagul_learn.policies`, whose ``build_policy`` is the same function that knows every kind."""
-    from seagul_control import evaluation as ev
-    from seagul_learn import policies
-
     net = tmp_path / "net.pt"
     net.write_bytes(b"")
     assert ev.builder_path(PolicySpec("lqr")) == "seagul_control.evaluation:build_lqr_policy"
@@ -154,8 +157,6 @@ def test_a_kind_registered_at_run_time_is_built_in_the_worker_processes():
     """The workers start with the module's own registry: the caller's registration reaches them as the builder's
     module path, so a registered kind evaluates with two processes exactly as with one (and as the kind it
     copies)."""
-    from seagul_control import evaluation as ev
-
     with pytest.raises(ValueError, match="module:function"):
         ev.register_policy_kind("bad", "seagul_control.evaluation.build_lqr_policy")
     with pytest.raises(ValueError, match="needs a builder"):
@@ -179,17 +180,12 @@ def test_a_kind_registered_at_run_time_is_built_in_the_worker_processes():
 
 
 def test_sb3_policy_moved_to_seagul_learn_policies_and_its_old_name_warns():
-    import seagul_control.evaluation as ev
-    from seagul_learn.policies import SB3Policy
-
     with pytest.warns(DeprecationWarning, match=r"seagul_control\.evaluation\.SB3Policy .*seagul_learn\.policies"):
         old = ev.SB3Policy
     assert old is SB3Policy
 
 
 def test_cli_evaluate(tmp_path, capsys):
-    from seagul_learn.cli import main
-
     out = tmp_path / "eval"
     code = main(["evaluate", "--task", "acrobot", "--lqr", "--grid", "2", "--out", str(out), "--no-progress"])
     assert code == 0
@@ -248,8 +244,6 @@ def test_running_episodes_imports_neither_matplotlib_nor_torch():
 
 @pytest.mark.parametrize("name", MOVED)
 def test_moved_names_still_import_from_evaluation_with_a_warning(name):
-    import seagul_control.evaluation as ev
-
     with pytest.warns(DeprecationWarning, match=rf"seagul_control\.evaluation\.{name} .*seagul_learn\.report\.{name}"):
         old = getattr(ev, name)
     assert old is getattr(report, name)
@@ -260,8 +254,6 @@ def test_moved_names_still_import_from_evaluation_with_a_warning(name):
 
 
 def test_deprecated_write_outputs_gives_the_same_files(tmp_path):
-    import seagul_control.evaluation as ev
-
     episodes = [
         EpisodeResult("mpc", 0, [0.1, 0.2, 0, 0], [3.1, 0.0, 0, 0], 0.02, 12.5, True, False, 50, [0.001], [4]),
         EpisodeResult("mpc", 1, [0.3, 0.4, 0, 0], [2.0, 1.0, 0, 0], 1.5, 40.0, False, False, 50, [0.002], [5]),
@@ -295,8 +287,6 @@ def test_evaluation_over_robots_simulates_each_episodes_robot_and_the_oracle_pla
     assert not np.allclose(on_model[0].final_state, plain[0].final_state)  # another robot flew the episode
     assert not np.allclose(on_model[0].final_state, on_oracle[0].final_state)  # the oracle planned for it
     # The oracle's episode is the LQR of the true robot on that robot (built independently here).
-    from seagul_control.evaluation import run_policy_episode
-    from seagul_control.lqr import LQRPolicy
 
     robot_task = task.with_params(task.parameters.high)
     ref, _ = run_policy_episode(task, LQRPolicy(robot_task), starts[0], robot=task.parameters.high)
@@ -312,8 +302,6 @@ def test_evaluation_over_robots_simulates_each_episodes_robot_and_the_oracle_pla
 def test_full_horizon_oracle_with_model_params_equals_the_rebuilt_robot():
     """``FullHorizonMPC(model_params=True)``: one set of solvers for every robot; ``set_robot`` plans as the MPC of
     the rebuilt task does; an evaluation over robots re-targets it instead of rebuilding it per episode."""
-    from seagul_control.mpc import FullHorizonMPC
-
     task = make_task("acrobot")
     robot = task.parameters.high
     x = np.array([np.pi - 0.3, 0.2, 0.1, -0.1])
@@ -354,10 +342,6 @@ def test_evaluation_over_robots_retargets_a_model_params_oracle_like_a_rebuilt_o
 
 
 def test_evaluate_passes_the_multistart_mode_to_the_learned_mpcs(tmp_path):
-    import argparse
-
-    from seagul_learn.commands.evaluate import add_arguments, specs_from_args
-
     parser = argparse.ArgumentParser()
     add_arguments(parser)
     (tmp_path / "n.pt").write_bytes(b"")

@@ -83,17 +83,25 @@ def imported_packages(path: Path) -> set[str]:
     return found
 
 
+DEPRECATED_PATHS = {"seagul_envs/tasks/profile.py": ["seagul_learn"]}
+"""Modules whose deprecated names still read an upper layer's data inside the function that serves them (and are
+listed here so that a new one is a decision): ``TaskProfile.presets``/``train_recipe`` read
+``seagul_learn.recipes``."""
+
+
 @pytest.mark.parametrize("package", [seagul_envs, seagul_control], ids=lambda p: p.__name__)
 def test_no_import_statement_of_a_lower_layer_names_an_upper_one(package: object) -> None:
-    """Not even inside a function: the upper layers are reached by module path strings only."""
+    """Not even inside a function: the upper layers are reached by module path strings only (a policy kind's
+    builder, a moved name's new module), apart from the deprecated paths listed in :data:`DEPRECATED_PATHS`."""
+    name = package.__name__  # type: ignore[attr-defined]
     root = Path(package.__path__[0])  # type: ignore[attr-defined]
     sources = sorted(root.rglob("*.py"))
     assert sources
     offenders = {
-        str(path.relative_to(root.parent)): sorted(imported_packages(path) & set(LOWER[package.__name__]))  # type: ignore[attr-defined]
-        for path in sources
+        str(path.relative_to(root.parent)): sorted(imported_packages(path) & set(LOWER[name])) for path in sources
     }
-    assert {path: bad for path, bad in offenders.items() if bad} == {}
+    found = {path: bad for path, bad in offenders.items() if bad}
+    assert found == {p: bad for p, bad in DEPRECATED_PATHS.items() if p.startswith(name + "/") and p in found}
 
 
 # ------------------------------------------------------------------------------------------------ seagul_control.io

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import dataclasses
 
+import casadi as ca
 import numpy as np
 import pytest
 
@@ -79,8 +80,6 @@ def test_with_params_records_the_values_keeps_the_objective_and_names_bad_input(
 
 
 def test_validate_task_rejects_parametric_dynamics_that_disagree_with_the_model():
-    import casadi as ca
-
     task = make_task("acrobot")
     space = task.parameters
     assert isinstance(space, ParameterSpace)

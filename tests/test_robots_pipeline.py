@@ -4,6 +4,9 @@ arrays, the Sobolev term in theta, and the uniform and adversarial samplers over
 from __future__ import annotations
 
 import dataclasses
+import json
+import subprocess
+import sys
 from pathlib import Path
 
 import numpy as np
@@ -11,12 +14,16 @@ import pytest
 import torch
 from toy_problem import ToyRobotSolver, ToySolver
 
+from seagul_control import LimitedLookaheadMPC
 from seagul_envs import make_task
+from seagul_learn.closed_loop import collect_queries
 from seagul_learn.dataset import Dataset, DatasetError, SolveRecord, training_arrays
+from seagul_learn.parallel import solve_many
 from seagul_learn.samplers import AdversarialOptions, AdversarialSampler, StartPool, UniformSampler
-from seagul_learn.solving import CachedBatchSolver, SolveRunner
+from seagul_learn.solving import CachedBatchSolver, SolveRunner, trajopt_batch_solver
 from seagul_learn.training import TrainConfig, train, training_loss, validation_robots
-from seagul_learn.value_network import ValueNetwork
+from seagul_learn.trajopt import TrajectoryOptimizer
+from seagul_learn.value_network import ValueEnsemble, ValueNetwork
 
 TASK = make_task("acrobot")
 
@@ -261,9 +268,6 @@ def test_the_closed_loop_sampler_over_robots_flies_each_episode_on_its_robot_and
 
 
 def test_collect_queries_over_robots_records_the_robot_of_each_plan_and_needs_an_mpc_over_robots():
-    from seagul_control import LimitedLookaheadMPC
-    from seagul_learn.closed_loop import collect_queries
-
     starts = TASK.sample_x0(np.random.default_rng(3), 1)
     robots = TASK.parameters.sample(np.random.default_rng(4), 1).reshape(1, -1)
     net = ValueNetwork(TASK.nx, (8,), seed=3, n_params=TASK.parameters.size, theta=TASK.theta, task_name="acrobot")
@@ -286,10 +290,6 @@ def test_model_params_needs_parameters_and_a_sampler_that_takes_robots():
 
 
 def test_solve_many_solves_each_start_for_its_robot_like_the_optimizer_and_in_any_number_of_workers():
-    from seagul_learn.parallel import solve_many
-    from seagul_learn.solving import trajopt_batch_solver
-    from seagul_learn.trajopt import TrajectoryOptimizer
-
     pool = _pool(3, seed=4)
     options = {"codegen": False, "multi_start": "never"}
     one = solve_many(TASK, pool.starts, pool.taus, thetas=pool.thetas, progress=False, solver_options=options)
@@ -317,8 +317,6 @@ def test_solve_many_solves_each_start_for_its_robot_like_the_optimizer_and_in_an
 
 
 def test_an_ensemble_over_robots_measures_its_spread_at_the_robots_it_is_given():
-    from seagul_learn.value_network import ValueEnsemble
-
     k = TASK.parameters.size
     ens = ValueEnsemble(TASK.nx, (8,), members=3, seed=1, n_params=k, theta=TASK.theta, task_name="acrobot")
     x = TASK.sample_x0(np.random.default_rng(0), 4)
@@ -334,10 +332,6 @@ def test_param_bench_report_renders_the_committed_result(tmp_path: Path) -> None
     """``bench_param_adversary --report-from``: the committed five-seed result as a report, one row per controller
     with its per-seed rates and their median; ``--dry-run``: the closed-loop sampler's settings on the benchmark
     config. The script runs as a user runs it, in its own process."""
-    import json
-    import subprocess
-    import sys
-
     root = Path(__file__).resolve().parents[1]
     script = str(root / "benchmarks" / "bench_param_adversary.py")
 

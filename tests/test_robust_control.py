@@ -7,6 +7,7 @@ import dataclasses
 import numpy as np
 import pytest
 
+from seagul_control.estimation import ParameterEstimator
 from seagul_control.mpc import LimitedLookaheadMPC
 from seagul_envs import make_task
 from seagul_learn.value_network import ValueNetwork
@@ -73,8 +74,6 @@ def _transitions(theta: np.ndarray, n: int, seed: int = 0) -> list[tuple[np.ndar
 
 
 def test_the_estimator_recovers_a_robot_from_its_transitions_and_resets_to_the_model():
-    from seagul_control.estimation import ParameterEstimator
-
     space = TASK.parameters
     theta = space.low + np.array([0.8, 0.3, 0.6, 0.2, 0.9, 0.1]) * (space.high - space.low)
     est = ParameterEstimator(TASK, window=20, iterations=5, prior=1e-6)
