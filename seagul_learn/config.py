@@ -427,7 +427,9 @@ def _make(cls: type, data: Mapping[str, Any], where: str) -> Any:
 
 
 def _translate(kwargs: dict[str, Any], warn: bool, stacklevel: int) -> dict[str, Any]:
-    """Keyword arguments with the flat names of earlier versions moved to their parts (module docstring)."""
+    """Keyword arguments with the flat names of earlier versions and the dotted names (``"sampler.episodes"``) moved
+    into their parts. A sampler field applies when the chosen sampler has it and is ignored otherwise (as the flat
+    ``cl_*`` fields were ignored by the other samplers), so one set of overrides serves runs of every sampler."""
     legacy = {k: kwargs.pop(k) for k in list(kwargs) if k in LEGACY_NAMES}
     dotted = {k: kwargs.pop(k) for k in list(kwargs) if "." in k}
     if "sampler" in kwargs and not isinstance(kwargs["sampler"], SamplerOptions):
@@ -442,8 +444,6 @@ def _translate(kwargs: dict[str, Any], warn: bool, stacklevel: int) -> dict[str,
     for key, value in legacy.items():
         part, name, owner = LEGACY_NAMES[key]
         if owner is not None and owner != sampler.name:
-            if warn:
-                _warn(f"TrainConfig: {key} has no effect with the {sampler.name} sampler (ignored)", stacklevel + 1)
             continue
         updates.setdefault(part or "", {})[name] = _legacy_value(key, value)
     for key, value in dotted.items():
@@ -451,13 +451,8 @@ def _translate(kwargs: dict[str, Any], warn: bool, stacklevel: int) -> dict[str,
         if part == "sampler":
             if name not in {f.name for f in fields(sampler)}:
                 if any(name in {f.name for f in fields(c)} for c in SAMPLER_OPTIONS.values()):  # type: ignore[arg-type]
-                    if warn:
-                        _warn(
-                            f"TrainConfig: {key} has no effect with the {sampler.name} sampler (ignored)",
-                            stacklevel + 1,
-                        )
                     continue
-                raise ValueError(f"unknown TrainConfig field {key!r}: the {sampler.name} sampler has no {name!r}")
+                raise ValueError(f"unknown TrainConfig field {key!r}: no sampler has a field {name!r}")
         elif part not in SECTIONS or name not in {f.name for f in fields(SECTIONS[part])}:
             raise ValueError(f"unknown TrainConfig field {key!r}")
         updates.setdefault(part, {})[name] = tuple(value) if isinstance(value, list) else value

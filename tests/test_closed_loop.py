@@ -12,7 +12,14 @@ from seagul_control.mpc import LimitedLookaheadMPC
 from seagul_envs import make_task
 from seagul_learn.closed_loop import ClosedLoopOptions, collect_queries, farthest_first, snap_tau
 from seagul_learn.solving import tail_horizon
-from seagul_learn.training import TrainConfig, train
+from seagul_learn.training import (
+    LossConfig,
+    NetworkConfig,
+    RuntimeConfig,
+    ScheduleConfig,
+    TrainConfig,
+    train,
+)
 from seagul_learn.value_network import ValueNetwork
 
 
@@ -57,12 +64,12 @@ def test_options_reject_bad_values():
     with pytest.raises(ValueError, match="trust_region"):
         ClosedLoopOptions(trust_region="wall")
     with pytest.raises(ValueError, match="tail_stride"):
-        TrainConfig(sampler="closed-loop", cl_tail_stride=0)
-    with pytest.raises(ValueError, match="value_cap"):
-        TrainConfig(value_cap=-1.0)
+        TrainConfig(sampler=ClosedLoopOptions(tail_stride=0))
+    with pytest.raises(ValueError, match=r"loss\.value_cap"):
+        TrainConfig(loss=LossConfig(value_cap=-1.0))
     with pytest.raises(ValueError, match="round boundaries"):
-        TrainConfig(budget=50, solves_per_round=10, snapshots=(25,))
-    TrainConfig(budget=55, solves_per_round=10, snapshots=(20, 55))  # multiples of the round, and the budget
+        TrainConfig(budget=50, runtime=RuntimeConfig(snapshots=(25,)))
+    TrainConfig(budget=55, runtime=RuntimeConfig(snapshots=(20, 55)))  # multiples of the round, and the budget
 
 
 def _net(task, seed=0):
@@ -94,37 +101,35 @@ def test_collect_queries_are_the_planned_terminal_states():
 
 
 def _cl_config(tmp_path, **overrides) -> TrainConfig:
-    base = dict(
+    """A small closed-loop run; ``overrides`` name fields, or fields of a part as ``part__field``."""
+    base = TrainConfig(
         task="acrobot",
-        sampler="closed-loop",
+        sampler=ClosedLoopOptions(
+            episodes=1,
+            horizon=2,
+            jit=False,
+            uniform_fraction=0.34,
+            uniform_solves=6,
+            warmup_rounds=1,
+            trust_region="none",
+        ),
         budget=18,
-        solves_per_round=6,
-        train_steps_per_round=10,
-        batch_size=32,
-        pretrain_solves=4,
-        pretrain_steps=10,
-        hidden=(8,),
-        cl_episodes=1,
-        cl_horizon=2,
-        cl_jit=False,
-        cl_uniform_fraction=0.34,
-        cl_uniform_solves=6,
-        cl_warmup_rounds=1,
-        cl_trust_region="none",
+        schedule=ScheduleConfig(
+            solves_per_round=6, train_steps_per_round=10, batch_size=32, pretrain_solves=4, pretrain_steps=10
+        ),
+        network=NetworkConfig(hidden=(8,)),
         seed=0,
-        cache_dir=str(tmp_path / "cache"),
-        progress=False,
+        runtime=RuntimeConfig(cache_dir=str(tmp_path / "cache"), progress=False),
         validate=False,
     )
-    base.update(overrides)
-    return TrainConfig(**base)
+    return base.replaced(**{k.replace("__", "."): v for k, v in overrides.items()})
 
 
 @pytest.fixture(scope="module")
 def closed_loop_run(tmp_path_factory):
     tmp = tmp_path_factory.mktemp("cl")
     toy = ToySolver(make_task("acrobot"))
-    result = train(_cl_config(tmp, snapshots=(6,)), tmp / "run", batch_solver=toy, solver_name="toy")
+    result = train(_cl_config(tmp, runtime__snapshots=(6,)), tmp / "run", batch_solver=toy, solver_name="toy")
     return tmp, toy, result
 
 
@@ -159,10 +164,19 @@ def test_closed_loop_training_resumes_exactly(closed_loop_run, tmp_path):
 
     task = make_task("acrobot")
     with pytest.raises(KeyboardInterrupt):
-        train(_cl_config(tmp_path, snapshots=(6,)), tmp_path / "run", batch_solver=Interrupt(task), solver_name="toy")
+        train(
+            _cl_config(tmp_path, runtime__snapshots=(6,)),
+            tmp_path / "run",
+            batch_solver=Interrupt(task),
+            solver_name="toy",
+        )
     toy = ToySolver(task)
     resumed = train(
-        _cl_config(tmp_path, snapshots=(6,)), tmp_path / "run", resume=True, batch_solver=toy, solver_name="toy"
+        _cl_config(tmp_path, runtime__snapshots=(6,)),
+        tmp_path / "run",
+        resume=True,
+        batch_solver=toy,
+        solver_name="toy",
     )
     assert toy.num_solves < 18  # stored records were reused
     np.testing.assert_array_equal(resumed.network.casadi_parameters(), full.network.casadi_parameters())
@@ -172,14 +186,14 @@ def test_closed_loop_training_resumes_exactly(closed_loop_run, tmp_path):
 
 
 def test_collect_refit_collects_with_a_deterministic_refit(tmp_path):
-    """``cl_collect_refit``: the collecting MPC runs a refit of the buffer (other queries than the loop network's),
+    """``sampler.collect_refit``: the collecting MPC runs a refit of the buffer (other queries than the loop network's),
     the same refit on every run and after an interruption."""
     task = make_task("acrobot")
-    with pytest.raises(ValueError, match="refit_steps"):
-        _cl_config(tmp_path, cl_collect_refit=True)
+    with pytest.raises(ValueError, match=r"sampler\.collect_refit needs refit\.steps > 0"):
+        _cl_config(tmp_path, sampler__collect_refit=True)
 
     def run(name, solver=None, resume=False, **overrides):
-        cfg = _cl_config(tmp_path / name, refit_steps=30, **overrides)
+        cfg = _cl_config(tmp_path / name, refit__steps=30, **overrides)
         return train(
             cfg, tmp_path / name / "run", resume=resume, batch_solver=solver or ToySolver(task), solver_name="toy"
         )
@@ -187,7 +201,7 @@ def test_collect_refit_collects_with_a_deterministic_refit(tmp_path):
     def tails(result):
         return [r.x_init.tolist() for r in result.dataset.records() if r.sampler == "closed-loop"]
 
-    first = run("a", cl_collect_refit=True)
+    first = run("a", sampler__collect_refit=True)
     assert len(tails(first)) == 8  # two closed-loop rounds of 4 tails, as without the option
     assert tails(run("plain")) != tails(first)  # the loop network plans elsewhere than its refit
 
@@ -198,8 +212,8 @@ def test_collect_refit_collects_with_a_deterministic_refit(tmp_path):
             return super().__call__(starts, taus)
 
     with pytest.raises(KeyboardInterrupt):
-        run("b", Interrupt(task), cl_collect_refit=True)
-    resumed = run("b", resume=True, cl_collect_refit=True)
+        run("b", Interrupt(task), sampler__collect_refit=True)
+    resumed = run("b", resume=True, sampler__collect_refit=True)
     assert tails(resumed) == tails(first)
     np.testing.assert_array_equal(resumed.network.casadi_parameters(), first.network.casadi_parameters())
 
@@ -220,163 +234,13 @@ def test_batch_solver_routes_tail_times_to_tail_problems_bellman_consistent():
     np.testing.assert_allclose(tail.grad_x, full.knot_grads[k], rtol=1e-4, atol=1e-6)
 
 
-def test_bench_glider_block_carries_the_contract_fields_and_update_keeps_other_tasks(tmp_path, monkeypatch):
-    """The benchmark's glider settings come from the task (horizon, grid), its block names the perch rate as the
-    contract spells it, and ``--update`` writes one task's block beside the others already in the file."""
-    import importlib
-    import json
-    import sys
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[1]
-    monkeypatch.syspath_prepend(str(root / "benchmarks"))
-    bench_mod = importlib.import_module("bench_closed_loop")
-    glider = bench_mod.BenchConfig.for_task("glider", quick=False)
-    assert (glider.horizon, glider.grid, glider.goal_blend) == (10, 6, 0.0)
-    assert glider.train["value_cap"] == 1500.0 and glider.train["refit_steps"] == 0
-    # What the shipped method trains with (and what the reports' train_settings show) is the task's recipe.
-    recipe = bench_mod.method_config(glider, bench_mod.SHIPPED)
-    assert (recipe["cl_warmup_rounds"], recipe["cl_collect_refit"], recipe["refit_ensemble"]) == (0, False, 1)
-    assert recipe["cl_keep_best"] is True
-    assert recipe["value_cap"] == 1500.0 and recipe["task"] == "glider"
-    rows = [
-        {"seed": s, "success_rate": r, "heldout_success_rate": r, "query_error": {"median": 1.0, "p95": 2.0}}
-        for s, r in enumerate([0.5, 0.9, 0.7])
-    ]
-    full = {"success_rate": 1.0, "heldout_success_rate": float("nan")}
-    timing = {"median_ms": 5.0, "p95_ms": 30.0, "steps": 10, "success_rate": 0.7}
-    block = bench_mod.shipped_block(glider, rows, full, Path("net.pt"), timing, 2000)
-    assert block["perch_success_rate"] == block["success_rate"] == 0.7
-    assert block["full_horizon_perch_success_rate"] == 1.0 and block["seeds"] == 3 and block["horizon"] == 10
-    assert "perch_success_rate" not in bench_mod.shipped_block(
-        bench_mod.BenchConfig.for_task("acrobot", quick=False), rows, full, Path("net.pt"), timing, 2000
-    )
-    target = tmp_path / "closed_loop.json"
-    target.write_text(json.dumps({"acrobot": {"success_rate": 0.9}, "machine": {"cpu": "old"}}))
-    monkeypatch.setattr(bench_mod, "aggregate_task", lambda bench, *a: {"task": bench.task, "success_rate": 0.7})
-    monkeypatch.setattr(sys, "argv", ["bench_closed_loop.py"])
-    bench_mod.main(
-        [
-            "--aggregate",
-            str(tmp_path),
-            "--network",
-            "net.pt",
-            "--budgets",
-            "2000",
-            "--tasks",
-            "glider",
-            "--update",
-            str(target),
-        ]
-    )
-    merged = json.loads(target.read_text())
-    assert merged["acrobot"] == {"success_rate": 0.9} and merged["glider"]["success_rate"] == 0.7
-    assert "glider" in merged["machines"]
-
-
-def test_bench_aggregates_several_budgets_with_grid_only_rows_and_draws_the_curve(tmp_path, monkeypatch):
-    """``--aggregate`` over budgets: per-budget folders, a budget may lack seeds or held-out rates; the contract's
-    fields are the shipped budget's; the figure is written."""
-    import importlib
-    import json
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[1]
-    monkeypatch.syspath_prepend(str(root / "benchmarks"))
-    bench_mod = importlib.import_module("bench_closed_loop")
-    glider = bench_mod.BenchConfig.for_task("glider", quick=False)
-    glider.budgets = (2000, 3000)
-    glider.seed_list = (0, 1)
-    (tmp_path / "b2000").mkdir()
-    (tmp_path / "b3000").mkdir()
-    grid_only = {"success_rate": 0.5, "fallback_steps": 3}
-    (tmp_path / "b2000" / "seed0.json").write_text(json.dumps(grid_only))
-    (tmp_path / "b2000" / "seed1.json").write_text(json.dumps({**grid_only, "success_rate": 0.7}))
-    full_row = {"success_rate": 0.9, "heldout_success_rate": 0.8, "fallback_steps": 1, "solve_time_s": 600.0}
-    full_row["query_error"] = {"median": 5.0, "p95": 50.0, "mean_signed": -1.0}
-    (tmp_path / "b3000" / "seed0.json").write_text(json.dumps(full_row))  # seed 1 not evaluated at 3000
-    (tmp_path / "full-horizon.json").write_text(json.dumps({"success_rate": 1.0, "heldout_success_rate": None}))
-    timing = {"median_ms": 5.0, "p95_ms": 9.0, "steps": 3, "success_rate": 1.0}
-    monkeypatch.setattr(bench_mod, "timed_steps", lambda *a: timing)
-    figure = tmp_path / "curve.png"
-    other = tmp_path / "other" / "b2000"
-    other.mkdir(parents=True)
-    for seed, rate in ((0, 0.25), (1, 0.5)):
-        (other / f"seed{seed}.json").write_text(json.dumps({**grid_only, "success_rate": rate}))
-    flat = tmp_path / "flat"  # one budget's seed<N>.json directly in the folder: the budget comes with it
-    flat.mkdir()
-    (flat / "seed1.json").write_text(json.dumps({**grid_only, "success_rate": 0.1}))
-    label, spec = bench_mod.parse_compare(f"closed-loop+rest-2000={flat}@2000")
-    assert (label, spec) == ("closed-loop+rest-2000", (flat, 2000))
-    assert bench_mod.parse_compare("x=a/b")[1] == (Path("a/b"), None)
-    for bad in ("no-label", "=dir", "x=dir@many"):
-        with pytest.raises(ValueError, match="LABEL=DIR"):
-            bench_mod.parse_compare(bad)
-    compare = {"last": (tmp_path / "other", None), label: spec}
-    block = bench_mod.aggregate_task(glider, tmp_path, Path("net.pt"), 3000, figure, compare)
-    assert list(block["methods"][label]["budgets"]) == ["2000"]  # not the shipped budget, 3000
-    assert block["methods"][label]["budgets"]["2000"]["success_median"] == 0.1
-    versus = block["methods"]["last"]["budgets"]["2000"]
-    assert versus["success_median"] == 0.375 and versus["vs_shipped"]["wins"] == 2  # the shipped method, seed by seed
-    assert versus["vs_shipped"]["median_difference"] == pytest.approx(0.225)
-    assert block["budget"] == 3000 and block["perch_success_rate"] == 0.9 and block["heldout_success_rate"] == 0.8
-    # the glider's shipped method under its own name (its overrides turn off what "+rest" adds)
-    assert block["method"] == "closed-loop+sobolev" and bench_mod.SHIPPED not in block["methods"]
-    rows = block["methods"]["closed-loop+sobolev"]["budgets"]
-    assert rows["2000"]["success_median"] == 0.6 and rows["2000"]["seeds"] == [0, 1]
-    assert np.isnan(rows["2000"]["heldout_median"]) and rows["3000"]["seeds"] == [0]
-    assert block["train_settings"]["value_cap"] == 1500.0 and figure.stat().st_size > 0
-    assert "network" not in versus  # no row names its network
-
-
-def test_the_controller_table_has_a_row_per_learning_method_with_its_representative_network(tmp_path, monkeypatch):
-    """A method whose rows name their networks gets the median seed's (ties: the lower seed) in the summary, and
-    ``bench_controllers`` lists every other method of ``closed_loop.json`` beside it, each at its largest budget."""
-    import importlib
-    import json
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[1]
-    monkeypatch.syspath_prepend(str(root / "benchmarks"))
-    bench_mod = importlib.import_module("bench_closed_loop")
-    controllers = importlib.import_module("bench_controllers")
-    bench = bench_mod.BenchConfig.for_task("acrobot", quick=False)
-    rows = [
-        {"seed": s, "success_rate": r, "heldout_success_rate": h, "network": f"net{s}.pt"}
-        for s, r, h in ((0, 0.1, 0.2), (1, 0.3, 0.1), (2, 0.2, 0.3), (3, 0.25, 0.3))
-    ]
-    summary = bench_mod.summarize(bench, {"uniform": {2000: rows}}, {"success_rate": 1.0})
-    at = summary["uniform"]["budgets"]["2000"]
-    assert at["success_median"] == pytest.approx(0.225) and at["network_seed"] == 2 and at["network"] == "net2.pt"
-    results = tmp_path / "results"
-    results.mkdir()
-    shipped = {"method": bench_mod.SHIPPED, "budget": 1000, "horizon": 5, "trust_region": "none"}
-    low = {**at, "success_median": 0.05, "heldout_median": float("nan")}
-    methods = {
-        bench_mod.SHIPPED: {"budgets": {"1000": at}},
-        "uniform": {"budgets": {"300": low, **summary["uniform"]["budgets"]}},
-    }
-    methods["adversarial"] = {"budgets": {"300": low}}  # run to 300 solves only: its row is there
-    methods["closed-loop+select"] = summary["uniform"]  # another closed-loop recipe, not a sampler's row
-    (results / "closed_loop.json").write_text(json.dumps({"acrobot": {**shipped, "methods": methods}}))
-    monkeypatch.setattr(controllers, "RESULTS", results)
-    row, other = controllers.sampler_rows("acrobot")
-    # the largest budget a sampler was run to (not the shipped one, and not its first row)
-    assert row["method"] == "learned 5-step MPC (uniform, 4 seeds)" and row["nlp_solves"] == 2000
-    assert row["grid_success"] == pytest.approx(0.225) and row["heldout_success"] == pytest.approx(0.25)
-    assert row["median_ms"] is None  # no latency starts: not timed
-    assert other["method"].startswith("learned 5-step MPC (adversarial") and other["nlp_solves"] == 300
-    assert other["grid_success"] == pytest.approx(0.05)
-    assert controllers.sampler_rows("glider") == []
-
-
 def test_keep_best_deploys_the_network_the_best_collector_flew(tmp_path):
-    """``cl_keep_best``: only deployed collectors count, ties go to the later round, ``network.pt`` is the kept one
+    """``sampler.keep_best``: only deployed collectors count, ties go to the later round, ``network.pt`` is the kept one
     (``network_last.pt`` the loop's), and the choice follows the sampler log."""
     from seagul_learn.training import _keep_best
     from seagul_learn.value_network import ValueNetwork
 
-    config = _cl_config(tmp_path, cl_keep_best=True)
+    config = _cl_config(tmp_path, sampler__keep_best=True)
     rates = [("lqr", 2), ("none", 1), ("none", 3), ("none", 2), ("none", 3), ("none", 0)]
     log: list[dict] = []
     saved = []
@@ -395,13 +259,15 @@ def test_keep_best_deploys_the_network_the_best_collector_flew(tmp_path):
     np.testing.assert_array_equal(
         kept.casadi_parameters(), ValueNetwork(4, (4,), task_name="acrobot", seed=4).casadi_parameters()
     )
-    with pytest.raises(ValueError, match="cl_keep_best needs sampler='closed-loop' and refit_steps=0"):
-        _cl_config(tmp_path, cl_keep_best=True, refit_steps=10)
+    with pytest.raises(ValueError, match=r"sampler\.keep_best needs refit\.steps = 0"):
+        _cl_config(tmp_path, sampler__keep_best=True, refit__steps=10)
     # In a run: network.pt is the kept network, the loop's last is network_last.pt.
     toy = ToySolver(make_task("acrobot"))
     run = tmp_path / "run"
     result = train(
-        _cl_config(tmp_path, cl_keep_best=True, cl_warmup_rounds=0, cl_episodes=2, snapshots=(12,)),
+        _cl_config(
+            tmp_path, sampler__keep_best=True, sampler__warmup_rounds=0, sampler__episodes=2, runtime__snapshots=(12,)
+        ),
         run,
         batch_solver=toy,
         solver_name="toy",
@@ -422,7 +288,7 @@ def test_keep_best_deploys_the_network_the_best_collector_flew(tmp_path):
 
 
 def test_visited_fraction_solves_tails_from_the_states_the_episodes_visited(tmp_path):
-    """``cl_visited_fraction``: that share of a closed-loop round's tails starts at states the collecting episode
+    """``sampler.visited_fraction``: that share of a closed-loop round's tails starts at states the collecting episode
     visited (with their times to go on the step grid), the rest at planner queries; the budget is spent exactly and
     a re-run asks for the same problems."""
     task = make_task("acrobot")
@@ -430,7 +296,9 @@ def test_visited_fraction_solves_tails_from_the_states_the_episodes_visited(tmp_
         ClosedLoopOptions(visited_fraction=1.5)
 
     def run(name):
-        cfg = _cl_config(tmp_path / name, cl_visited_fraction=0.5, cl_uniform_fraction=0.0, cl_tail_stride=1)
+        cfg = _cl_config(
+            tmp_path / name, sampler__visited_fraction=0.5, sampler__uniform_fraction=0.0, sampler__tail_stride=1
+        )
         return train(cfg, tmp_path / name / "run", batch_solver=ToySolver(task), solver_name="toy")
 
     result = run("a")
@@ -542,24 +410,24 @@ def test_grid_slice_starts_lie_on_the_evaluation_grids_slice_of_x0():
 
 
 def test_refit_candidates_deploys_the_selected_members(tmp_path):
-    """``refit_candidates``: the final refit fits that many members, the selection's subset becomes network.pt, the
+    """``refit.candidates``: the final refit fits that many members, the selection's subset becomes network.pt, the
     candidates and the scores are kept."""
     from seagul_learn.value_network import ValueEnsemble
 
     task = make_task("acrobot")
-    with pytest.raises(ValueError, match="refit_candidates"):
-        _cl_config(tmp_path, refit_steps=20, refit_ensemble=2, refit_candidates=2)
-    with pytest.raises(ValueError, match="select_slice_fraction"):
-        _cl_config(tmp_path, refit_steps=20, refit_ensemble=2, refit_candidates=3, select_slice_fraction=-0.1)
+    with pytest.raises(ValueError, match=r"refit\.candidates must exceed refit\.ensemble"):
+        _cl_config(tmp_path, refit__steps=20, refit__ensemble=2, refit__candidates=2)
+    with pytest.raises(ValueError, match=r"selection\.slice_fraction must be in \[0, 1\]"):
+        _cl_config(tmp_path, refit__steps=20, refit__ensemble=2, refit__candidates=3, selection__slice_fraction=-0.1)
     cfg = _cl_config(
         tmp_path,
-        refit_steps=20,
-        refit_ensemble=2,
-        refit_candidates=3,
-        select_episodes=1,
-        select_jit=False,
+        refit__steps=20,
+        refit__ensemble=2,
+        refit__candidates=3,
+        selection__episodes=1,
+        selection__jit=False,
         budget=6,
-        cl_uniform_solves=6,
+        sampler__uniform_solves=6,
     )
     result = train(cfg, tmp_path / "run", batch_solver=ToySolver(task), solver_name="toy")
     run = tmp_path / "run"
@@ -586,7 +454,7 @@ def test_refit_candidates_deploys_the_selected_members(tmp_path):
 
 
 def test_slice_fraction_starts_that_share_of_each_rounds_episodes_at_rest():
-    """``cl_slice_fraction``: that share of a round's episode starts lies on the grid's slice of X0 (the acrobot at
+    """``sampler.slice_fraction``: that share of a round's episode starts lies on the grid's slice of X0 (the acrobot at
     rest, inside X0's angle box, never the grid's points), the rest are exactly the uniform starts drawn without the
     option; each round draws new ones, reproducibly; outside [0, 1] is refused."""
     from seagul_control.evaluation import start_grid
@@ -596,7 +464,8 @@ def test_slice_fraction_starts_that_share_of_each_rounds_episodes_at_rest():
     task = make_task("acrobot")
     with pytest.raises(ValueError, match="slice_fraction"):
         ClosedLoopOptions(slice_fraction=-0.1)
-    assert TrainConfig(task="acrobot", cl_slice_fraction=0.25).closed_loop_options().slice_fraction == 0.25
+    config = TrainConfig(task="acrobot", sampler=ClosedLoopOptions(slice_fraction=0.25))
+    assert config.closed_loop_options().slice_fraction == 0.25
     pool = StartPool(np.zeros((1, task.nx)), np.zeros(1), np.zeros(1, dtype=int))
 
     def starts(fraction, round_index, seed=3):
@@ -619,9 +488,9 @@ def test_slice_fraction_starts_that_share_of_each_rounds_episodes_at_rest():
 
 
 def test_the_collector_deploys_the_tasks_guard_unless_told_otherwise(tmp_path):
-    """``cl_trust_region=None`` (the default): after the warm-up the sampler collects, and ``cl_keep_best`` ranks,
-    with the guard the task deploys (``profile.mpc_trust_region``: the acrobot's "none", a new task's "lqr");
-    an explicit guard wins; the CLI spells it ``--cl-trust-region``."""
+    """``sampler.trust_region=None`` (the default): after the warm-up the sampler collects, and
+    ``sampler.keep_best`` ranks, with the guard the task deploys (``profile.mpc_trust_region``: the acrobot's "none",
+    a new task's "lqr"); an explicit guard wins; the CLI spells it ``--sampler.trust-region``."""
     import dataclasses
 
     from seagul_learn.closed_loop import ClosedLoopSampler
@@ -632,11 +501,12 @@ def test_the_collector_deploys_the_tasks_guard_unless_told_otherwise(tmp_path):
     acrobot = make_task("acrobot")
     guarded = dataclasses.replace(acrobot, profile=dataclasses.replace(acrobot.profile, mpc_trust_region="lqr"))
     pool = StartPool(np.zeros((1, acrobot.nx)), np.zeros(1), np.zeros(1, dtype=int))
-    assert TrainConfig().cl_trust_region is None and ClosedLoopOptions().trust_region is None
+    assert ClosedLoopOptions().trust_region is None
     assert ClosedLoopSampler(acrobot, pool).deployed_guard == "none"
     assert ClosedLoopSampler(guarded, pool).deployed_guard == "lqr"
     assert ClosedLoopSampler(acrobot, pool, ClosedLoopOptions(trust_region="box")).deployed_guard == "box"
-    assert TrainConfig(task="acrobot", cl_trust_region="lqr").closed_loop_options().trust_region == "lqr"
+    config = TrainConfig(task="acrobot", sampler=ClosedLoopOptions(trust_region="lqr"))
+    assert config.closed_loop_options().trust_region == "lqr"
     # keep-best counts the rounds of the resolved guard only
     log = [
         {"round": 0, "collector": "lqr", "episodes": 4, "episode_successes": 4},
@@ -646,45 +516,6 @@ def test_the_collector_deploys_the_tasks_guard_unless_told_otherwise(tmp_path):
     for task, saved in ((acrobot, True), (guarded, False)):
         out = tmp_path / task.profile.mpc_trust_region
         out.mkdir()
-        config = _cl_config(tmp_path, task=task, cl_keep_best=True, cl_trust_region=None)
+        config = _cl_config(tmp_path, task=task, sampler__keep_best=True, sampler__trust_region=None)
         _keep_best(out, config, log, net, 100)
         assert (out / "network_best.pt").is_file() is saved
-
-
-@pytest.mark.parametrize("task_name", ["acrobot", "glider"])
-def test_the_tasks_recipe_is_what_the_benchmark_ships(monkeypatch, task_name):
-    """``TrainConfig.recipe(task)`` (``seagul train``'s default) trains exactly what ``bench_closed_loop.py``
-    measured and ships for the task (its full run: the largest budget, the shipped method's settings)."""
-    import importlib
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[1]
-    monkeypatch.syspath_prepend(str(root / "benchmarks"))
-    bench_mod = importlib.import_module("bench_closed_loop")
-    bench = bench_mod.BenchConfig.for_task(task_name, quick=False)
-    shipped = {**bench_mod.method_config(bench, bench_mod.SHIPPED), "budget": max(bench.budgets)}
-    assert TrainConfig.recipe(task_name) == TrainConfig(**shipped)
-    assert TrainConfig.recipe(task_name) != TrainConfig(task=task_name)  # not the paper's defaults
-
-
-def test_the_shipped_recipe_is_the_2000_solve_one_with_its_budget_split_halved(monkeypatch):
-    """The shipped ``closed-loop+rest-1000`` differs from the 2,000-solve ``closed-loop+rest`` it scales down only in
-    how its 1,000 solves split: the same fractions of uniform draws, guarded and deployed-collector rounds."""
-    import importlib
-    from pathlib import Path
-
-    root = Path(__file__).resolve().parents[1]
-    monkeypatch.syspath_prepend(str(root / "benchmarks"))
-    bench_mod = importlib.import_module("bench_closed_loop")
-    bench = bench_mod.BenchConfig.for_task("acrobot", quick=False)
-    assert bench_mod.SHIPPED == "closed-loop+rest-1000" and max(bench.budgets) == 1000
-    shipped = TrainConfig(**bench_mod.method_config(bench, "closed-loop+rest"), budget=2000)
-    scaled = TrainConfig(**bench_mod.method_config(bench, bench_mod.SHIPPED), budget=1000)
-
-    def split(c: TrainConfig) -> tuple[float, float]:
-        rounds = (c.budget - c.cl_uniform_solves) / c.solves_per_round
-        return c.cl_uniform_solves / c.budget, c.cl_warmup_rounds / rounds
-
-    assert split(scaled) == split(shipped) == (0.5, 0.5)
-    differs = {f for f in shipped.__dataclass_fields__ if getattr(shipped, f) != getattr(scaled, f)}
-    assert differs == {"budget", "cl_uniform_solves", "cl_warmup_rounds"}

@@ -12,27 +12,34 @@ from toy_problem import ToySolver
 
 from seagul_envs import make_task
 from seagul_learn.dataset import Dataset
-from seagul_learn.training import TrainConfig, ValidationSpec, train, training_loss, validation_dataset
+from seagul_learn.training import (
+    AdversarialOptions,
+    NetworkConfig,
+    RefitConfig,
+    RuntimeConfig,
+    ScheduleConfig,
+    TrainConfig,
+    ValidationSpec,
+    train,
+    training_loss,
+    validation_dataset,
+)
 from seagul_learn.value_network import ValueNetwork
 
 
 def _config(tmp_path, **overrides) -> TrainConfig:
-    base = dict(
-        task="acrobot",
-        sampler="adversarial",
+    """A small run; ``overrides`` name fields, or fields of a part as ``part__field`` (``loss__sobolev_weight``)."""
+    base = TrainConfig(
+        task=overrides.pop("task", "acrobot"),
+        sampler=AdversarialOptions(max_steps=3),
         budget=12,
-        solves_per_round=5,
-        train_steps_per_round=15,
-        batch_size=32,
-        pretrain_solves=4,
-        pretrain_steps=10,
-        adv_max_steps=3,
+        schedule=ScheduleConfig(
+            solves_per_round=5, train_steps_per_round=15, batch_size=32, pretrain_solves=4, pretrain_steps=10
+        ),
         seed=0,
-        cache_dir=str(tmp_path / "cache"),
-        progress=False,
+        runtime=RuntimeConfig(cache_dir=str(tmp_path / "cache"), progress=False),
     )
-    base.update(overrides)
-    return TrainConfig(**base)
+    return base.replaced(**{k.replace("__", "."): v for k, v in overrides.items()})
 
 
 def _run(tmp_path, name: str, toy: ToySolver | None = None, resume: bool = False, **overrides):
@@ -77,7 +84,7 @@ def test_budget_is_exact_and_failures_are_recorded(tmp_path, sampler):
 def test_both_samplers_start_from_identical_parameters_and_the_baseline_starts(tmp_path):
     uni = _run(tmp_path, "u", sampler="uniform")
     adv = _run(tmp_path, "a", sampler="adversarial")
-    sob = _run(tmp_path, "s", sampler="uniform", sobolev_weight=1.0)
+    sob = _run(tmp_path, "s", sampler="uniform", loss__sobolev_weight=1.0)
     first = {(m.mse_initial, m.mse_all_knots) for m in (uni.metrics[0], adv.metrics[0], sob.metrics[0])}
     assert len(first) == 1  # identical pretrained network
     uniform_starts = {tuple(r.x_init) for r in uni.dataset.records() if r.sampler == "uniform"}
@@ -88,17 +95,25 @@ def test_both_samplers_start_from_identical_parameters_and_the_baseline_starts(t
 
 
 def test_training_reduces_validation_error(tmp_path):
-    result = _run(tmp_path, "r", sampler="uniform", budget=20, train_steps_per_round=400, batch_size=64, lr=3e-3)
+    result = _run(
+        tmp_path,
+        "r",
+        sampler="uniform",
+        budget=20,
+        schedule__train_steps_per_round=400,
+        schedule__batch_size=64,
+        schedule__lr=3e-3,
+    )
     assert result.metrics[-1].mse_all_knots < 0.3 * result.metrics[0].mse_all_knots
     assert result.metrics[-1].mse_initial < 0.3 * result.metrics[0].mse_initial
 
 
 def test_same_seed_same_dataset_and_weights_different_seed_differs(tmp_path):
-    a = _run(tmp_path, "a", sobolev_weight=0.5)
-    b = _run(tmp_path, "b", sobolev_weight=0.5, workers=2)  # worker count never changes results
+    a = _run(tmp_path, "a", loss__sobolev_weight=0.5)
+    b = _run(tmp_path, "b", loss__sobolev_weight=0.5, runtime__workers=2)  # worker count never changes results
     _assert_same_datasets(a.dataset, b.dataset)
     np.testing.assert_array_equal(_weights(a.network), _weights(b.network))
-    c = _run(tmp_path, "c", sobolev_weight=0.5, seed=1)
+    c = _run(tmp_path, "c", loss__sobolev_weight=0.5, seed=1)
     assert not np.array_equal(_weights(a.network), _weights(c.network))
 
 
@@ -142,7 +157,7 @@ def test_run_directory_guards(tmp_path):
 
 
 def test_outputs_are_written(tmp_path):
-    result = _run(tmp_path, "r", task="glider", sampler="adversarial", eval_every=5)
+    result = _run(tmp_path, "r", task="glider", sampler="adversarial", schedule__eval_every=5)
     out = tmp_path / "r"
     net = ValueNetwork.load(out / "network.pt")
     assert net.task_name == "glider"
@@ -207,10 +222,12 @@ def test_sobolev_term_matches_its_definition():
         ({"task": "pendulum"}, r"unknown task 'pendulum'; available tasks: \['acrobot', 'glider'\]"),
         ({"sampler": "greedy"}, "unknown sampler 'greedy'"),
         ({"budget": 0}, "budget must be >= 1"),
-        ({"workers": 0}, "workers must be >= 1"),
-        ({"sobolev_weight": -1.0}, "sobolev_weight must be >= 0"),
-        ({"adv_projection": "wrap"}, "projection must be 'clip' or 'reflect'"),
-        ({"backend": "dask"}, "unknown backend 'dask'"),
+        ({"runtime__workers": 0}, r"runtime\.workers must be >= 1"),
+        ({"loss__sobolev_weight": -1.0}, r"loss\.sobolev_weight must be >= 0"),
+        ({"sampler__projection": "wrap"}, "sampler: projection must be 'clip' or 'reflect'"),
+        ({"runtime__backend": "dask"}, r"unknown runtime\.backend 'dask'"),
+        ({"sampler__episode": 3}, "unknown TrainConfig field 'sampler.episode': no sampler has a field 'episode'"),
+        ({"network__hidden": (32, 0)}, r"network\.hidden must be positive layer widths"),
     ],
 )
 def test_bad_config_is_named(tmp_path, override, message):
@@ -231,7 +248,7 @@ class SlowToy(ToySolver):
         time.sleep(0.02)
         return super().solve(x, tau)
 
-config = TrainConfig(**{config!r})
+config = TrainConfig.from_dict({config!r})
 train(config, {out!r}, resume=True, batch_solver=SlowToy(make_task("acrobot"), fail_above=np.pi + 0.25),
       solver_name="toy")
 """
@@ -288,7 +305,7 @@ def test_renormalize_keeps_the_function_and_moves_the_statistics():
 
 def test_renormalize_follows_the_buffer_in_training(tmp_path):
     fixed = _run(tmp_path, "fixed", sampler="uniform")
-    moving = _run(tmp_path, "moving", sampler="uniform", renormalize=True)
+    moving = _run(tmp_path, "moving", sampler="uniform", loss__renormalize=True)
     from seagul_learn.dataset import training_arrays
 
     buffer_values = training_arrays(moving.dataset.records()).value
@@ -322,7 +339,7 @@ def test_grad_label_max_drops_only_extreme_gradient_labels():
 
 def test_refit_replaces_the_network_and_resumes_to_the_same_weights(tmp_path):
     task = make_task("acrobot")
-    reference = _run(tmp_path, "ref", sampler="uniform", refit_steps=30, value_cap=20.0, renormalize=True)
+    reference = _run(tmp_path, "ref", sampler="uniform", refit__steps=30, loss__value_cap=20.0, loss__renormalize=True)
     out = tmp_path / "ref"
     assert (out / "network_loop.pt").is_file()
     loop = ValueNetwork.load(out / "network_loop.pt")
@@ -335,7 +352,7 @@ def test_refit_replaces_the_network_and_resumes_to_the_same_weights(tmp_path):
     def interrupted(*args, **kwargs):
         raise KeyboardInterrupt
 
-    opts = dict(sampler="uniform", refit_steps=30, value_cap=20.0, renormalize=True)
+    opts = dict(sampler="uniform", refit__steps=30, loss__value_cap=20.0, loss__renormalize=True)
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(training_module, "refit", interrupted)
         with pytest.raises(KeyboardInterrupt):
@@ -347,22 +364,22 @@ def test_refit_replaces_the_network_and_resumes_to_the_same_weights(tmp_path):
 
 
 def test_refit_ensemble_is_the_refit_script_s_ensemble_and_loads_as_one_file(tmp_path):
-    """``refit_ensemble=2``: ``network.pt`` is a 2-member ValueEnsemble (the loop's stays one network) and equals
-    the same refit made afterwards from the stored run (``training.refit`` with ``ensemble=2``), so a finished run
-    can be refit as an ensemble later with the same result."""
+    """``refit.ensemble=2``: ``network.pt`` is a 2-member ValueEnsemble (the loop's stays one network) and equals
+    the same refit made afterwards from the stored run (``training.refit`` with ``network.ensemble=2``), so a finished
+    run can be refit as an ensemble later with the same result."""
     from seagul_learn.dataset import training_arrays
     from seagul_learn.training import _Trainer, make_network, refit
     from seagul_learn.value_network import ValueEnsemble
 
-    with pytest.raises(ValueError, match="refit_ensemble"):
-        TrainConfig(refit_ensemble=2)
-    result = _run(tmp_path, "ens", sampler="uniform", refit_steps=20, value_cap=20.0, refit_ensemble=2)
+    with pytest.raises(ValueError, match=r"refit\.ensemble must be >= 0 and needs refit\.steps > 0"):
+        RefitConfig(ensemble=2)
+    result = _run(tmp_path, "ens", sampler="uniform", refit__steps=20, loss__value_cap=20.0, refit__ensemble=2)
     out = tmp_path / "ens"
     loaded = ValueNetwork.load(out / "network.pt")
     assert isinstance(loaded, ValueEnsemble) and len(loaded.networks) == 2
     assert not isinstance(ValueNetwork.load(out / "network_loop.pt"), ValueEnsemble)
     config = TrainConfig.from_run(out, task=make_task("acrobot"))
-    later_config = replace(config, refit_ensemble=0, ensemble=2)
+    later_config = replace(config, refit=RefitConfig(steps=20), network=NetworkConfig(ensemble=2))
     task = make_task("acrobot")
     buffer = training_arrays(result.dataset.records(), task.nx)
     later = refit(later_config, task, buffer, _Trainer(later_config, make_network(later_config, task), None))

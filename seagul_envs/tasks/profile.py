@@ -279,18 +279,13 @@ class _MovedToRecipes:
         given = obj.__dict__.get(self.private)
         if given is not None:
             return given
-        import warnings
-
-        warnings.warn(
-            f"TaskProfile.{self.name} is deprecated (the data moved out of the task profile); use {_MOVED[self.name]}",
-            DeprecationWarning,
-            stacklevel=2,
-        )
-        from seagul_learn.recipes import legacy_profile_data  # the deprecated path only
-
-        return legacy_profile_data(obj.__dict__.get("_recipe_book", "default"), self.name)
+        return _RecipeView(obj.__dict__.get("_recipe_book", "default"), self.name)
 
     def __set__(self, obj: Any, value: Any) -> None:
+        if isinstance(value, _RecipeView):  # dataclasses.replace of a profile: still not given, same recipe file
+            obj.__dict__.pop(self.private, None)
+            obj.__dict__["_recipe_book"] = value.book
+            return
         if value is None or isinstance(value, _MovedToRecipes):  # not given (the dataclass passes its default)
             obj.__dict__.pop(self.private, None)
             return
@@ -307,6 +302,44 @@ class _MovedToRecipes:
         else:
             value = {str(k): v for k, v in dict(value).items()}
         obj.__dict__[self.private] = value
+
+
+class _RecipeView(Mapping[str, Any]):
+    """What a profile's deprecated ``presets`` / ``train_recipe`` read as when not given: the recipe file's data
+    (:func:`seagul_learn.recipes.legacy_profile_data`), loaded, with a ``DeprecationWarning``, when first looked
+    into, so copying a profile (``dataclasses.replace``) neither warns nor turns the data into given data."""
+
+    def __init__(self, book: str, name: str) -> None:
+        self.book = book
+        self.name = name
+        self._data: dict[str, Any] | None = None
+
+    def _load(self) -> dict[str, Any]:
+        if self._data is None:
+            import warnings
+
+            warnings.warn(
+                f"TaskProfile.{self.name} is deprecated (the data moved out of the task profile); use "
+                f"{_MOVED[self.name]}",
+                DeprecationWarning,
+                stacklevel=3,
+            )
+            from seagul_learn.recipes import legacy_profile_data  # the deprecated path only
+
+            self._data = legacy_profile_data(self.book, self.name)
+        return self._data
+
+    def __getitem__(self, key: str) -> Any:
+        return self._load()[key]
+
+    def __iter__(self) -> Any:
+        return iter(self._load())
+
+    def __len__(self) -> int:
+        return len(self._load())
+
+    def __repr__(self) -> str:
+        return f"<TaskProfile.{self.name} of seagul_learn/recipes/{self.book}.yml (deprecated)>"
 
 
 def _given_only(name: str) -> Any:
