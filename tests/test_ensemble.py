@@ -9,7 +9,7 @@ from toy_problem import ToySolver
 
 from seagul_control.mpc import LimitedLookaheadMPC
 from seagul_envs import make_task
-from seagul_learn.training import TrainConfig, train
+from seagul_learn.training import NetworkConfig, RuntimeConfig, ScheduleConfig, TrainConfig, train
 from seagul_learn.value_network import ValueEnsemble, ValueNetwork, ValueNetworkFileError
 
 
@@ -64,7 +64,7 @@ def test_bad_arguments_are_named():
     with pytest.raises(ValueError, match="pessimism"):
         ValueEnsemble(4, (8,), members=2, pessimism=-1.0)
     with pytest.raises(ValueError, match="ensemble"):
-        TrainConfig(ensemble=0)
+        NetworkConfig(ensemble=0)
 
 
 def test_the_mpc_uses_the_pessimistic_value_and_swaps_weights_without_rebuild():
@@ -89,16 +89,12 @@ def test_training_an_ensemble_trains_every_member(tmp_path):
         task="acrobot",
         sampler="uniform",
         budget=8,
-        solves_per_round=4,
-        train_steps_per_round=20,
-        batch_size=16,
-        pretrain_solves=4,
-        pretrain_steps=5,
-        hidden=(8,),
-        ensemble=3,
+        schedule=ScheduleConfig(
+            solves_per_round=4, train_steps_per_round=20, batch_size=16, pretrain_solves=4, pretrain_steps=5
+        ),
+        network=NetworkConfig(hidden=(8,), ensemble=3),
         seed=0,
-        cache_dir=str(tmp_path / "cache"),
-        progress=False,
+        runtime=RuntimeConfig(cache_dir=str(tmp_path / "cache"), progress=False),
     )
     result = train(cfg, tmp_path / "run", batch_solver=ToySolver(task), solver_name="toy")
     assert isinstance(result.network, ValueEnsemble)

@@ -8,7 +8,7 @@ import pytest
 from seagul_envs import make_task
 from seagul_learn.samplers import AdversarialOptions, AdversarialSampler, StartPool, _Chain
 from seagul_learn.solving import SolveRunner
-from seagul_learn.training import TrainConfig, train
+from seagul_learn.training import RuntimeConfig, ScheduleConfig, TrainConfig, train
 from seagul_learn.value_network import ValueNetwork
 
 trajopt = pytest.importorskip("seagul_learn.trajopt")
@@ -50,16 +50,11 @@ def test_adversarial_step_increases_the_true_loss_on_the_acrobot():
 def test_train_runs_on_the_real_solver(tmp_path, sampler):
     config = TrainConfig(
         task="acrobot",
-        sampler=sampler,
+        sampler=AdversarialOptions(max_steps=2) if sampler == "adversarial" else sampler,
         budget=4,
-        solves_per_round=2,
-        train_steps_per_round=5,
-        pretrain_solves=2,
-        pretrain_steps=5,
-        adv_max_steps=2,
+        schedule=ScheduleConfig(solves_per_round=2, train_steps_per_round=5, pretrain_solves=2, pretrain_steps=5),
         validate=False,
-        progress=False,
-        cache_dir=str(tmp_path / "cache"),
+        runtime=RuntimeConfig(progress=False, cache_dir=str(tmp_path / "cache")),
     )
     result = train(config, tmp_path / "run", batch_solver=_batch_solver("acrobot"), solver_name="trajopt-test")
     records = result.dataset.records()
@@ -73,11 +68,8 @@ def test_glider_adversarial_training_with_validation(tmp_path):
     config = TrainConfig(
         task="glider",
         budget=10,
-        solves_per_round=5,
-        train_steps_per_round=50,
-        pretrain_solves=3,
-        progress=False,
-        cache_dir=str(tmp_path / "cache"),
+        schedule=ScheduleConfig(solves_per_round=5, train_steps_per_round=50, pretrain_solves=3),
+        runtime=RuntimeConfig(progress=False, cache_dir=str(tmp_path / "cache")),
     )
     result = train(config, tmp_path / "run", batch_solver=_batch_solver("glider"), solver_name="trajopt-test")
     assert np.isfinite(result.metrics[-1].mse_initial)
