@@ -1,4 +1,9 @@
-"""seagul_control: the one NLP builder (direct transcription), LQR, limited-lookahead MPC, closed-loop evaluation."""
+"""seagul_control: the one NLP builder (direct transcription), LQR, limited-lookahead MPC, closed-loop evaluation.
+
+It sits on ``seagul_envs`` and never imports torch or ``seagul_learn`` (``tests/test_layers.py``): policy kinds that
+need a learned artefact are named by module path (:func:`seagul_control.evaluation.register_policy_kind`) and built
+by ``seagul_learn.policies``. Files are written through :mod:`seagul_control.io`.
+"""
 
 from __future__ import annotations
 
@@ -15,6 +20,7 @@ _LAZY: dict[str, str] = {
     "CasadiValueFunction": "seagul_control.value_function",
     "PolicySpec": "seagul_control.evaluation",
     "evaluate": "seagul_control.evaluation",
+    "register_policy_kind": "seagul_control.evaluation",
 }
 
 
