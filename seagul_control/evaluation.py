@@ -105,6 +105,9 @@ class PolicyKind:
     of the kind (a file is ignored)."""
 
 
+# The learned kinds' builders are named here, as strings, so that a spec of such a kind made by code that imported
+# only this module still builds (in any process, workers included); the string is the whole dependency: this module
+# imports nothing from seagul_learn, and a process that never builds a learned kind never imports it.
 _KINDS: dict[str, PolicyKind] = {
     "mpc": PolicyKind(
         "seagul_control.evaluation:build_lookahead_policy", "seagul_learn.policies:build_network_mpc_policy"
