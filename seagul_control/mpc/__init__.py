@@ -93,20 +93,18 @@ exports every name it did.
 
 from __future__ import annotations
 
+# The private names below are imported by other modules and tests from seagul_control.mpc (``x as x``: re-exported).
 from seagul_control.codegen import find_c_compiler, jit_solver_options
-from seagul_control.mpc.base import (
-    _TIME_EPS,
-    MPCStepInfo,
-    _converged,
-    _jit_directory,
-    _lower,
-    _MPCBase,
-    _Plan,
-    _Problem,
-    _shift_guess,
-    _shifted,
-    default_cache_dir,
-)
+from seagul_control.mpc.base import _TIME_EPS as _TIME_EPS
+from seagul_control.mpc.base import MPCStepInfo, default_cache_dir
+from seagul_control.mpc.base import _converged as _converged
+from seagul_control.mpc.base import _jit_directory as _jit_directory
+from seagul_control.mpc.base import _lower as _lower
+from seagul_control.mpc.base import _MPCBase as _MPCBase
+from seagul_control.mpc.base import _Plan as _Plan
+from seagul_control.mpc.base import _Problem as _Problem
+from seagul_control.mpc.base import _shift_guess as _shift_guess
+from seagul_control.mpc.base import _shifted as _shifted
 from seagul_control.mpc.full_horizon import FullHorizonMPC
 from seagul_control.mpc.lookahead import LimitedLookaheadMPC
 from seagul_control.mpc.options import (
@@ -118,7 +116,9 @@ from seagul_control.mpc.options import (
     TrustRegion,
 )
 from seagul_control.mpc.saving import SavedValueFunction, extract_value_function_file, load_mpc, save_mpc
-from seagul_control.mpc.terminal_cost import _taylor_forms, _to_numpy, _value_function_form
+from seagul_control.mpc.terminal_cost import _taylor_forms as _taylor_forms
+from seagul_control.mpc.terminal_cost import _to_numpy as _to_numpy
+from seagul_control.mpc.terminal_cost import _value_function_form as _value_function_form
 
 __all__ = [
     "ColdGuess",
@@ -138,19 +138,3 @@ __all__ = [
     "load_mpc",
     "save_mpc",
 ]
-
-# Private names other modules and tests import from seagul_control.mpc (kept importable from here).
-_PRIVATE = (
-    _TIME_EPS,
-    _MPCBase,
-    _Plan,
-    _Problem,
-    _converged,
-    _jit_directory,
-    _lower,
-    _shift_guess,
-    _shifted,
-    _taylor_forms,
-    _to_numpy,
-    _value_function_form,
-)
