@@ -144,24 +144,20 @@ class _Server:
             self.start()  # (re)fork: the child then holds every solver built so far
         conn = self.conn
         assert conn is not None
+        # One try block from the request to the reply: a Ctrl-C landing anywhere in between (also between the poll
+        # and the read) stops the child, so that its late reply can never answer a later call.
         try:
             conn.send((key, args))
-            ready = conn.poll(limit)
-        except (BrokenPipeError, EOFError, OSError) as exc:
-            self.stop()
-            raise SolverDied(f"the solver's child process died ({exc})") from exc
-        except BaseException:  # Ctrl-C mid-solve: the child's late reply must never answer a later call
-            self.stop()
-            raise
-        if not ready:
-            self.stop()
-            raise SolveTimeout(f"no solution within max_solve_time={limit:g} s (solve stopped)")
-        try:
+            if not conn.poll(limit):
+                self.stop()
+                raise SolveTimeout(f"no solution within max_solve_time={limit:g} s (solve stopped)")
             kind, payload, stats = conn.recv()
-        except (EOFError, OSError) as exc:  # the child crashed inside the solver
+        except SolveTimeout:
+            raise
+        except (BrokenPipeError, EOFError, OSError) as exc:  # the child crashed inside the solver, or was killed
             self.stop()
             raise SolverDied(f"the solver's child process died ({exc})") from exc
-        except BaseException:
+        except BaseException:  # Ctrl-C mid-solve
             self.stop()
             raise
         if kind != "ok":

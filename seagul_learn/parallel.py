@@ -98,6 +98,10 @@ def _solve_chunk(
     return [opt.solve(x, float(t), theta=th) for x, t, th in zip(starts, taus, thetas, strict=True)]
 
 
+def _rows(thetas: np.ndarray | None, n: int) -> np.ndarray | None:
+    return None if thetas is None else thetas[:n]
+
+
 def _worker_init() -> None:
     for var in _THREAD_VARS:
         os.environ[var] = "1"
@@ -269,6 +273,15 @@ def _solve_local(
     chunks = _chunks(n, workers, None)
     results: list[SolveResult | None] = [None] * n
     pool = _local_pool(workers)
+    # A module that load_task read from a file after the pool's workers started is on no worker's sys.path (a worker
+    # inherits the path at its start, and the pool outlives calls): its classes and functions travel by value, as
+    # on Ray (loky pickles with cloudpickle, as the closed-loop evaluation's workers do).
+    from cloudpickle import register_pickle_by_value
+
+    from seagul_envs.tasks import file_task_modules
+
+    for module in file_task_modules():
+        register_pickle_by_value(module)
     with _progress(n, progress, f"{task.name} solves x{workers}") as bar:
         pending: dict[Future[list[SolveResult]], np.ndarray] = {}
         queue = list(chunks)
@@ -299,7 +312,8 @@ class _RayPool:
 
     ``key`` names the Ray session the actors live in (process id, GCS address, session name, job id): after
     ``ray.shutdown()`` and a new ``ray.init()`` (or a fork) the key no longer matches, the stale handles are dropped
-    and a new pool is built. ``created`` counts actor creations over the process's life (tests assert on it).
+    and a new pool is built. ``created`` counts actor creations and ``retried`` the chunks re-run after an actor's
+    process died, both over the process's life (tests assert on them).
     """
 
     def __init__(self) -> None:
@@ -307,6 +321,10 @@ class _RayPool:
         self.key: tuple[Any, ...] | None = None
         self.actors: list[Any] = []
         self.created = 0
+        self.retried = 0
+        """Chunks served first by an actor that Ray restarted after its process died. ``_solve_ray`` keeps one chunk
+        in flight per actor, so inside a call this is the chunk the dead process was solving, re-run from its inputs
+        (an actor that died idle, between two calls, counts its next call's first chunk)."""
 
     def clear(self) -> list[Any]:
         actors, self.actors, self.key = self.actors, [], None
@@ -410,7 +428,7 @@ def _solve_ray(
         if queue:
             idx = queue.pop(0)
             rows = None if thetas is None else thetas[idx]
-            ref = actors[actor_i].solve_chunk.remote(task_ref, frozen, starts[idx], taus[idx], fingerprint, rows)
+            ref = actors[actor_i].run_chunk.remote(task_ref, frozen, starts[idx], taus[idx], fingerprint, rows)
             in_flight[ref] = (actor_i, idx)
 
     finished = False
@@ -422,7 +440,11 @@ def _solve_ray(
                 ready, _ = ray.wait(list(in_flight), num_returns=1)
                 ref = ready[0]
                 actor_i, idx = in_flight.pop(ref)
-                for i, res in zip(idx, ray.get(ref), strict=True):
+                chunk, rerun = ray.get(ref)
+                if rerun:
+                    with _RAY_POOL.lock:
+                        _RAY_POOL.retried += 1
+                for i, res in zip(idx, chunk, strict=True):
                     results[int(i)] = res
                 bar.update(len(idx))
                 submit(actor_i)
@@ -443,7 +465,14 @@ def _ray_actor_class(ray: Any) -> Any:
     the task's fingerprint and the options).
 
     A dead actor is restarted (its solvers are rebuilt on demand) and its in-flight chunk re-run (deterministic, so
-    safe).
+    safe). ``run_chunk`` (what :func:`solve_many` calls) tells the caller whether the chunk is the first one a
+    restarted actor serves, which :attr:`_RayPool.retried` counts; ``solve_chunk`` returns the results alone (the
+    benchmarks call it directly).
+
+    Test hook: :meth:`exit_at_solve` arms the actor to end its own process (``os._exit(1)``, as a crash inside the
+    solver would) when it starts its ``k``-th solve from then on, in the middle of a chunk. The arming lives in the
+    actor's process, so the restarted actor is unarmed and the re-run chunk completes: a test injects a worker death
+    at a chosen solve, and checks the recovery by counters, without racing a kill from outside against the solves.
     """
     global _RAY_ACTOR
     if _RAY_ACTOR is None:
@@ -451,6 +480,10 @@ def _ray_actor_class(ray: Any) -> Any:
         class _SolverActor:
             def __init__(self) -> None:
                 _worker_init()
+                self.restarted = bool(ray.get_runtime_context().was_current_actor_reconstructed)
+                """This process replaces one of the same actor that died (Ray restarted the actor)."""
+                self.chunks = 0
+                self.exit_in: int | None = None
 
             def solve_chunk(
                 self,
@@ -461,7 +494,34 @@ def _ray_actor_class(ray: Any) -> Any:
                 fingerprint: str | None = None,
                 thetas: np.ndarray | None = None,
             ) -> list[SolveResult]:
+                self.chunks += 1
+                if self.exit_in is not None and self.exit_in <= len(starts):
+                    done = self.exit_in - 1  # solve the ones before, then die inside the chunk
+                    if done:
+                        _solve_chunk(task, frozen, starts[:done], taus[:done], fingerprint, _rows(thetas, done))
+                    os._exit(1)
+                if self.exit_in is not None:
+                    self.exit_in -= len(starts)
                 return _solve_chunk(task, frozen, starts, taus, fingerprint, thetas)
+
+            def run_chunk(
+                self,
+                task: Task | str,
+                frozen: Frozen,
+                starts: np.ndarray,
+                taus: np.ndarray,
+                fingerprint: str | None = None,
+                thetas: np.ndarray | None = None,
+            ) -> tuple[list[SolveResult], bool]:
+                """``solve_chunk``'s results and whether this is a restarted actor's first chunk (a re-run one)."""
+                rerun = self.restarted and self.chunks == 0
+                return self.solve_chunk(task, frozen, starts, taus, fingerprint, thetas), rerun
+
+            def exit_at_solve(self, k: int) -> None:
+                """Test hook: end this actor's process when it starts its ``k``-th solve from now (``k >= 1``)."""
+                if k < 1:
+                    raise ValueError(f"k must be >= 1, got {k}")
+                self.exit_in = int(k)
 
             def pid(self) -> int:
                 return os.getpid()

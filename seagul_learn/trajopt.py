@@ -202,12 +202,23 @@ class _Attempt:
     sol: TranscriptionSolution
 
 
+_IPOPT_WALL_TIME = "Maximum_WallTime_Exceeded"
+"""IPOPT's status when ``ipopt.max_wall_time`` stopped it."""
+
+
 @dataclass
 class _Counters:
+    """What :meth:`TrajectoryOptimizer.solve` did since the optimizer was built (read by benchmarks and tests)."""
+
     solves: int = 0
     fallbacks: int = 0
+    """Solves that needed more than one attempt of the plan."""
     failures: int = 0
+    timeouts: int = 0
+    """Attempts stopped at ``max_solve_time``: a fatrop attempt killed by the guard (status ``"timeout: ..."``) or an
+    IPOPT one that stopped itself (``"Maximum_WallTime_Exceeded"``); each gave way to the plan's next attempt."""
     statuses: dict[str, int] = field(default_factory=dict)
+    """Final status of each solve, counted."""
 
 
 class TrajectoryOptimizer:
@@ -394,6 +405,7 @@ class TrajectoryOptimizer:
     def _attempt(self, solver: str, gname: str, x: np.ndarray, tau: float, phys: np.ndarray | None = None) -> _Attempt:
         tr = self._transcription(solver)
         sol = tr.solve(x, tau, guess=self.guess(gname, x, tau, solver), model_params=phys)
+        self.counters.timeouts += int(sol.status.startswith("timeout") or sol.status == _IPOPT_WALL_TIME)
         return _Attempt(f"{solver}:{gname}", sol)
 
     def _result(

@@ -105,8 +105,9 @@ def test_ctrl_c_during_a_guarded_solve_kills_its_child_and_the_next_solve_is_its
     key = trans._guard._key
     real = server.solvers[key]
 
-    class Slow:  # answers, but only after the interrupt: a stale reply if the child were left running
+    class Slow:  # the Ctrl-C arrives while the parent waits; the reply after it is a stale one (from x0 = 0)
         def __call__(self, **args):
+            os.kill(os.getppid(), signal.SIGINT)  # from inside the solve: no timer races the fork
             time.sleep(1.0)
             return real(**{**args, "x0": np.zeros_like(np.asarray(args["x0"]))})
 
@@ -115,15 +116,12 @@ def test_ctrl_c_during_a_guarded_solve_kills_its_child_and_the_next_solve_is_its
 
     server.solvers[key] = Slow()
     server.stop()  # the next call forks a child holding the slow solver
-    timer = threading.Timer(0.3, os.kill, (os.getpid(), signal.SIGINT))
-    timer.start()
-    try:
-        with pytest.raises(KeyboardInterrupt):
-            trans.solve(x, 5.0)
-    finally:
-        timer.cancel()
-    assert server.pid is None  # the interrupted child was killed and reaped
+    forks = server.forks
+    with pytest.raises(KeyboardInterrupt):
+        trans.solve(x, 5.0)
+    assert server.pid is None and server.forks == forks + 1  # the interrupted child was killed and reaped
     server.solvers[key] = real
-    time.sleep(1.2)  # past the moment the slow child would have replied
+    time.sleep(1.2)  # past the moment the slow child would have replied, had it lived
     again = trans.solve(x, 5.0)
+    assert server.forks == forks + 2  # a fresh child, with a fresh pipe
     np.testing.assert_allclose(again.primal, reference.primal, rtol=0, atol=1e-12)

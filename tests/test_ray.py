@@ -1,12 +1,14 @@
-"""The Ray backend of ``solve_many``: bit-identical to the local backend, and a worker killed mid-solve is retried.
+"""The Ray backend of ``solve_many``: bit-identical to the local backend, and a worker that dies mid-solve is retried.
 
 Needs the optional extra: ``pip install 'seagul[ray]'``; skipped without it. A local Ray with two
 CPUs stands in for a cluster. ``seagul_learn.parallel`` runs one ``_SolverActor`` per worker, declared with
 ``max_restarts=-1, max_task_retries=3``: when an actor's process dies, Ray restarts the actor and re-runs the chunk
-that was in flight (safe: a chunk's results depend only on its inputs). The test SIGKILLs an actor process while
-it executes ``solve_chunk`` (Ray names the process ``ray::_SolverActor.solve_chunk`` then) and checks that every
-result still comes back, equal bit for bit to the local backend's; with the retry options switched off the same
-kill must lose the chunk (so the test can fail).
+that was in flight (safe: a chunk's results depend only on its inputs). The fault is injected inside the actor, with
+its test hook ``exit_at_solve(k)``: the actor ends its own process (``os._exit(1)``) when it starts its k-th solve,
+at a point fixed in advance and not raced against the solves. The recovery is asserted by counters (one re-run chunk
+per death in ``_RAY_POOL.retried``, no new actor in ``_RAY_POOL.created``, a new pid for each dead actor only) and by
+the results: every start's exactly once, equal bit for bit to the local backend's. With the retry options switched
+off the same fault must lose the chunk (so the test can fail).
 
 The actors form one pool per process, created on the first Ray solve and reused by later calls
 (grown when a call asks for more workers, rebuilt after a new ``ray.init``); the tests count actor creations and
@@ -17,8 +19,6 @@ that the pool spreads over both nodes with results equal to the local backend's.
 from __future__ import annotations
 
 import os
-import signal
-import threading
 import time
 from collections.abc import Iterator
 from dataclasses import fields
@@ -35,8 +35,6 @@ from seagul_learn.results import SolveResult
 
 ray = pytest.importorskip("ray")
 pytestmark = pytest.mark.ray
-
-_SOLVING = b"ray::_SolverActor.solve_chunk"
 
 
 @pytest.fixture(scope="module", autouse=True)
@@ -111,98 +109,70 @@ def test_ray_solves_each_start_for_its_robot_like_the_local_backend(local_ray: A
         np.testing.assert_array_equal(a.knot_grad_theta, b.knot_grad_theta)
 
 
-def _parent(pid: int) -> int:
-    stat = Path(f"/proc/{pid}/stat").read_text()
-    return int(stat[stat.rindex(")") + 2 :].split()[1])  # the command name may contain spaces
+def _arm(faults: dict[int, int]) -> None:
+    """Arm pool actor ``i`` to end its own process at its ``k``-th solve from now, for each ``i: k`` of ``faults``."""
+    ray.get([parallel._RAY_POOL.actors[i].exit_at_solve.remote(k) for i, k in faults.items()])
 
 
-def _descends_from(pid: int, ancestor: int) -> bool:
-    """True if ``pid`` is a (grand)child of ``ancestor``: only our own Ray's workers may be killed."""
-    while pid > 1:
-        if pid == ancestor:
-            return True
-        pid = _parent(pid)
-    return False
+def _pids() -> list[int]:
+    return ray.get([a.pid.remote() for a in parallel._RAY_POOL.actors])
 
 
-def _process_titles() -> Iterator[tuple[int, bytes]]:
-    """``(pid, command line)`` of every process now running; one that ends while we look is skipped."""
-    for entry in os.listdir("/proc"):
-        if entry.isdigit():
-            try:
-                yield int(entry), Path(f"/proc/{entry}/cmdline").read_bytes()
-            except OSError:
-                continue
+FAST: dict[str, Any] = {"codegen": False, "horizon": 10, "plan": ("ipopt:line",), "multi_start": "never"}
+"""The fault tests' solves: one interpreted IPOPT attempt on the acrobot's 1 s tail (10 intervals), ~50 ms each and
+nothing compiled, so a restarted actor is back within its process start; what is tested is the pool's recovery."""
 
 
-class _ActorKiller(threading.Thread):
-    """SIGKILLs the first actor process of THIS test's Ray (a descendant of this process) executing ``solve_chunk``."""
-
-    def __init__(self, timeout: float = 120.0, spare: frozenset[int] = frozenset()) -> None:
-        super().__init__(daemon=True)
-        self.timeout = timeout
-        self.spare = spare  # pids never to kill (e.g. a shut-down pool's actors still exiting)
-        self.killed_pid: int | None = None
-        self.stop = threading.Event()
-
-    def run(self) -> None:
-        deadline = time.monotonic() + self.timeout
-        while not self.stop.is_set() and time.monotonic() < deadline:
-            for entry, title in _process_titles():
-                if entry in self.spare:
-                    continue
-                try:
-                    mine = title.startswith(_SOLVING) and _descends_from(entry, os.getpid())
-                    # the actor itself, not the child its guarded fatrop solves run in (forked from the actor, it
-                    # keeps the actor's process title of that moment)
-                    mine = mine and not Path(f"/proc/{_parent(entry)}/cmdline").read_bytes().startswith(b"ray::")
-                except (OSError, ValueError):  # the process ended while we looked
-                    continue
-                if mine:
-                    os.kill(entry, signal.SIGKILL)
-                    self.killed_pid = entry
-                    return
-            time.sleep(0.005)
+def _fast(starts: np.ndarray, workers: int, backend: str = "ray") -> list[SolveResult]:
+    taus = np.full(starts.shape[0], 1.0)
+    return solve_many("acrobot", starts, taus, workers=workers, backend=backend, progress=False, solver_options=FAST)
 
 
-def _ray_processes() -> frozenset[int]:
-    """The pids of all processes whose title is a Ray worker's (``ray::...``) right now."""
-    return frozenset(pid for pid, title in _process_titles() if title.startswith(b"ray::"))
+def _assert_each_start_once(starts: np.ndarray, results: list[SolveResult]) -> None:
+    """One result per start, in input order: no chunk lost, none delivered twice."""
+    assert len(results) == starts.shape[0]
+    for i, (x, res) in enumerate(zip(starts, results, strict=True)):
+        np.testing.assert_array_equal(res.x_init, x, err_msg=f"result {i} is not start {i}'s")
 
 
-def _solve_until_killed(
-    starts: np.ndarray, max_calls: int = 25, spare: frozenset[int] = frozenset()
-) -> Iterator[list[SolveResult]]:
-    """Repeat the same Ray solve (yielding each call's results) until an actor has been killed, then call once more.
+@pytest.mark.parametrize(
+    ("workers", "faults"),
+    [
+        # One actor, guided chunks of 2, 2, 1, 1, 1, 1 starts: it dies after the first solve of its first chunk.
+        (1, {0: 2}),
+        # Two actors; each call hands each actor one chunk first, so both die on their first chunk of the call.
+        (2, {0: 1, 1: 1}),
+    ],
+    ids=["mid-chunk", "both-actors"],
+)
+def test_an_actor_that_dies_mid_solve_is_restarted_and_its_chunk_rerun(
+    local_ray: Any, workers: int, faults: dict[int, int]
+) -> None:
+    starts = _acrobot_starts(8)
+    local = _fast(starts, workers=1, backend="local")
+    first = _fast(starts, workers)  # the pool has (at least) ``workers`` actors from here on
+    _assert_same_results(local, first)
+    created, retried, pids = parallel._RAY_POOL.created, parallel._RAY_POOL.retried, _pids()[:workers]
+    with pytest.raises(ray.exceptions.RayTaskError, match="k must be >= 1"):
+        _arm({0: 0})
 
-    The killer only matches an actor whose title says it executes ``solve_chunk``; repeating the call makes the test
-    independent of how fast the solves are against the /proc scan (one call of fast solves can end before a loaded
-    machine's scan sees an actor). The title may lag the task's end, so the kill can land just after a call's last
-    chunk returned: the call after the kill is the one that must meet the dead (or restarted) actor."""
-    killer = _ActorKiller(spare=spare)
-    killer.start()
-    try:
-        for _ in range(max_calls):
-            yield solve_many("acrobot", starts, workers=2, backend="ray", progress=False)
-            if killer.killed_pid is not None:
-                yield solve_many("acrobot", starts, workers=2, backend="ray", progress=False)
-                return
-    finally:
-        killer.stop.set()
-        killer.join()
-    raise AssertionError(f"no actor was seen solving in {max_calls} calls: the kill did not happen")
+    _arm(faults)
+    remote = _fast(starts, workers)
+
+    assert parallel._RAY_POOL.retried == retried + len(faults)  # the chunk each dead process held, run again
+    assert parallel._RAY_POOL.created == created  # Ray restarted the same actors; the pool made none
+    after = _pids()[:workers]
+    for i, (old, new) in enumerate(zip(pids, after, strict=True)):
+        assert (new != old) == (i in faults), f"actor {i}: pid {old} -> {new}"
+    _assert_each_start_once(starts, remote)
+    _assert_same_results(local, remote)
+    # The restarted actors are unarmed: the next call has nothing to re-run.
+    again = _fast(starts, workers)
+    assert parallel._RAY_POOL.retried == retried + len(faults) and _pids()[:workers] == after
+    _assert_same_results(local, again)
 
 
-@pytest.mark.skipif(not Path("/proc/self/cmdline").exists(), reason="finds the actor process through /proc")
-def test_actor_killed_mid_solve_is_retried_not_lost(local_ray: Any) -> None:
-    starts = _acrobot_starts(8)  # one start per chunk here, so the kill lands inside a solve
-    local = solve_many("acrobot", starts, workers=1, progress=False)
-    for remote in _solve_until_killed(starts):  # ends with the call after the kill (or fails: no kill happened)
-        _assert_same_results(local, remote)
-
-
-@pytest.mark.skipif(not Path("/proc/self/cmdline").exists(), reason="finds the actor process through /proc")
-def test_without_the_retry_options_the_same_kill_loses_the_chunk(
+def test_without_the_retry_options_the_same_fault_loses_the_chunk(
     local_ray: Any, monkeypatch: pytest.MonkeyPatch
 ) -> None:
     """Guard: the test above would fail if ``parallel`` stopped restarting actors and retrying their tasks."""
@@ -215,10 +185,13 @@ def test_without_the_retry_options_the_same_kill_loses_the_chunk(
 
     monkeypatch.setattr(parallel, "_ray_actor_class", lambda _ray: NoRetry)
     parallel.shutdown_ray_pool()  # the pool's actors (with retries) would otherwise be reused
-    old_actors = _ray_processes()  # may still be exiting with their last title: never the ones killed here
+    starts = _acrobot_starts(8)
+    _fast(starts, workers=2)  # a pool of actors without retries
+    retried = parallel._RAY_POOL.retried
+    _arm({0: 1})
     with pytest.raises(ray.exceptions.RayActorError):
-        for _ in _solve_until_killed(_acrobot_starts(8), spare=old_actors):
-            pass  # calls before the kill succeed; the one with the kill inside, or at the latest the next, raises
+        _fast(starts, workers=2)
+    assert parallel._RAY_POOL.retried == retried
     assert parallel._RAY_POOL.actors == []  # a failed call drops the pool: the next one starts from fresh actors
 
 
