@@ -243,6 +243,13 @@ def test_a_value_function_over_robots_is_conditioned_after_loading(acrobot, tmp_
         np.testing.assert_allclose(_first_actions(loaded, x, 3.0), _first_actions(mpc, x, 3.0), atol=1e-9)
 
 
+def test_the_robot_settings_round_trip(acrobot, tmp_path: Path) -> None:
+    mpc = LimitedLookaheadMPC(acrobot, None, 5, FAST, model_params=True, estimate_robot={"window": 7, "prior": 0.01})
+    loaded = LimitedLookaheadMPC.load(mpc.save(tmp_path / "estimating.zip"))
+    assert loaded.model_params and loaded.estimate_robot == {"window": 7, "prior": 0.01}
+    assert (loaded._estimators[0].window, loaded._estimators[0].prior) == (7, 0.01)
+
+
 def test_full_horizon_mpc_round_trip(acrobot, tmp_path: Path) -> None:
     full = FullHorizonMPC(acrobot, FullHorizonOptions(max_iter=200))
     path = full.save(tmp_path / "full.zip")
