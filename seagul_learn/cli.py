@@ -42,6 +42,10 @@ class Command:
     """Declares the subcommand's arguments."""
     run: Callable[[argparse.Namespace], int]
     """Runs it; returns the exit code."""
+    main: Callable[[Sequence[str]], int] | None = None
+    """Parses its own command line (the words after its name) and runs it, instead of the ``seagul`` parser: a
+    command whose flags another parser derives (``train``: tyro, from the config dataclasses). Its subparser then
+    only lists its run options for ``seagul --help``."""
 
 
 def discover_commands() -> list[Command]:
@@ -78,15 +82,26 @@ def build_parser(commands: Sequence[Command] | None = None) -> argparse.Argument
 
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``seagul`` console script."""
-    parser = build_parser()
-    args = parser.parse_args(argv)
+    words = list(sys.argv[1:] if argv is None else argv)
+    commands = discover_commands()
+    own = {c.name: c.main for c in commands if c.main is not None}
+    if words and words[0] in own:
+        name, command_main = words[0], own[words[0]]
+        return _guarded(name, lambda: command_main(words[1:]))
+    parser = build_parser(commands)
+    args = parser.parse_args(words)
+    return _guarded(args._name, lambda: args._run(args))
+
+
+def _guarded(name: str, run: Callable[[], int]) -> int:
+    """``run()``'s exit code; the errors a user can fix are a message and status 2, Ctrl-C status 130."""
     try:
-        return int(args._run(args) or 0)
+        return int(run() or 0)
     except (ValueError, FileExistsError, FileNotFoundError) as exc:
-        print(f"seagul {args._name}: error: {exc}", file=sys.stderr)
+        print(f"seagul {name}: error: {exc}", file=sys.stderr)
         return 2
     except KeyboardInterrupt:
-        print(f"\nseagul {args._name}: interrupted (rerun with --resume to continue where it stopped)", file=sys.stderr)
+        print(f"\nseagul {name}: interrupted (rerun with --resume to continue where it stopped)", file=sys.stderr)
         return 130
 
 

@@ -1,180 +1,270 @@
 """``seagul train``: one SEAGuL (or uniform-baseline) training run into a run directory.
 
-The options are derived from :class:`~seagul_learn.training.TrainConfig` (see :mod:`seagul_learn.commands._config`):
-one ``--field-name`` per field, typed by its annotation, defaulting to its default, helped by its docstring, so a new
-field needs no edit here. :func:`train_options` only adds validating parsers (whose errors name the accepted range),
-choices and the ``--sobolev`` alias of ``--sobolev-weight``. ``--no-progress`` is the ``progress``
-field's negative form. ``--out`` and ``--resume`` are not config fields.
+The configuration flags are derived by `tyro <https://brentyi.github.io/tyro/>`_ from
+:class:`~seagul_learn.config.TrainConfig` and its parts (CleanRL's pattern: the dataclasses are the interface): one
+flag per field, nested by part (``--schedule.solves-per-round 50``, ``--loss.sobolev-weight 1``, ``--network.hidden
+64 64``, ``--runtime.no-progress``), typed by its annotation, helped by its docstring, so a new field needs no edit
+here. The sampler is chosen as tyro chooses a member of a union, by a subcommand word: ``sampler:uniform``,
+``sampler:adversarial`` or ``sampler:closed-loop``, followed by (or preceded by) its options
+(``--sampler.episodes 20``); without the word the sampler of the starting config keeps its class.
 
-``--recipe`` chooses what the options that are not given take: ``task`` (default) the task's measured best
-settings (``task.profile.train_recipe``, :meth:`~seagul_learn.training.TrainConfig.recipe`; the acrobot's and the
-glider's are the closed-loop recipes of docs/experiments/closed-loop.md), ``paper`` the dataclass defaults (the paper's
-settings: adversarial sampler, 1 x 32 tanh, 100 solves). Options given always win. The defaults the help shows are
-the dataclass's.
+What the flags start from: ``--config FILE`` (a saved :meth:`~seagul_learn.config.TrainConfig.save`, YAML or JSON, or
+a run's ``config.json``), else the task's recipe ``--recipe NAME`` (default ``default``, the task's measured best:
+``seagul_learn/recipes/<task>.yml``; ``paper`` the paper's settings; ``shipped`` the shipped network's run). Naming
+another sampler than the recipe's starts from the dataclass defaults (a recipe's settings belong to its sampler),
+as :meth:`~seagul_learn.config.TrainConfig.recipe` does. ``--out``, ``--resume``, ``--task``, ``--recipe``,
+``--config`` and ``--solver-options JSON`` are not config flags.
+
+**The flat flags of earlier versions keep working** (``--sampler closed-loop --cl-episodes 20 --budget 100
+--hidden 64,64 --sobolev 1``, ``--recipe task``): :func:`translate_legacy` rewrites them into the nested ones and a
+deprecation message on stderr names each new spelling. A flat flag of a sampler that is not the chosen one is
+dropped, as the old parser ignored it.
 """
 
 from __future__ import annotations
 
 import argparse
+import json
+import sys
+from collections.abc import Sequence
 from typing import Any
 
 from seagul_envs import available_tasks
 from seagul_learn.cli import Command
-from seagul_learn.commands._args import (
-    fraction,
-    non_negative_float,
-    non_negative_int,
-    positive_float,
-    positive_int,
-    task_argument,
-)
-from seagul_learn.commands._config import Option, add_dataclass_arguments, json_value
+from seagul_learn.commands._args import task_argument
+from seagul_learn.commands._config import json_value
+
+RECIPE_ALIASES = {"task": "default"}
+"""``--recipe`` spellings of earlier versions: ``task`` is now the ``default`` recipe."""
+
+SAMPLER_WORDS = ("sampler:uniform", "sampler:adversarial", "sampler:closed-loop")
+"""The subcommand words that choose the sampler."""
 
 
-def hidden_widths(value: str) -> tuple[int, ...]:
-    """``"32"`` or ``"64,32"``: hidden-layer widths."""
-    try:
-        widths = tuple(int(v) for v in value.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers like 32 or 64,32, got {value!r}") from None
-    if not widths or any(w < 1 for w in widths):
-        raise argparse.ArgumentTypeError(f"widths must be >= 1, got {value!r}")
-    return widths
-
-
-def budgets(value: str) -> tuple[int, ...]:
-    """``"100,300,1000"``: solve counts."""
-    if not value.strip():
-        return ()
-    try:
-        out = tuple(int(v) for v in value.split(","))
-    except ValueError:
-        raise argparse.ArgumentTypeError(f"expected comma-separated integers like 100,300, got {value!r}") from None
-    if any(b < 1 for b in out):
-        raise argparse.ArgumentTypeError(f"budgets must be >= 1, got {value!r}")
-    return out
+def run_parser() -> argparse.ArgumentParser:
+    """The options of ``seagul train`` that are not config fields (the run directory, where the config starts)."""
+    parser = argparse.ArgumentParser(prog="seagul train", add_help=False)
+    parser.add_argument("--out", help="run directory (created; must be new unless --resume)")
+    parser.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
+    parser.add_argument(
+        "--task",
+        type=task_argument,
+        metavar="NAME|MODULE:FACTORY",
+        help=f"the task: a name, one of: {', '.join(available_tasks())}; or module:factory returning a Task "
+        "(required unless --config gives it)",
+    )
+    parser.add_argument(
+        "--recipe",
+        default=None,
+        metavar="NAME",
+        help="the task's recipe the flags start from (seagul_learn/recipes/<task>.yml): 'default' (the task's "
+        "measured best), 'paper' (the paper's settings), 'shipped' (the shipped network's run), ... (default: default)",
+    )
+    parser.add_argument("--config", metavar="FILE", help="start from a saved config (.yml/.yaml/.json) instead")
+    parser.add_argument(
+        "--solver-options",
+        type=json_object,
+        metavar="JSON",
+        help="options of the trajectory optimizer, a JSON object (part of the validation-cache key)",
+    )
+    return parser
 
 
 json_object = json_value(dict)
 """A JSON object (solver options)."""
 
-RECIPES = ("task", "paper")
-"""What ``--recipe`` accepts (module docstring)."""
-
-_NOT_GIVEN: Any = type("NotGiven", (), {"__repr__": lambda self: "<not given>"})()
-"""The parsed value of a config option the command line did not give (it takes the recipe's value)."""
-
-
-def train_options() -> dict[str, Option]:
-    """Refinements of the options derived from :class:`~seagul_learn.training.TrainConfig` (validating parsers,
-    choices, the ``--sobolev`` spelling); every field without an entry gets the option its annotation implies."""
-    from seagul_learn.training import SAMPLERS
-
-    return {
-        "task": Option(
-            type=task_argument,
-            required=True,
-            metavar="NAME|MODULE:FACTORY",
-            note=f"a name, one of: {', '.join(available_tasks())}; or module:factory returning a Task",
-        ),
-        "sampler": Option(choices=SAMPLERS),
-        "budget": Option(type=positive_int),
-        "solves_per_round": Option(type=positive_int),
-        "train_steps_per_round": Option(type=non_negative_int),
-        "batch_size": Option(type=positive_int),
-        "newest_fraction": Option(type=fraction),
-        "lr": Option(type=positive_float),
-        "sobolev_weight": Option(type=non_negative_float, aliases=("--sobolev",)),
-        "hidden": Option(type=hidden_widths, metavar="W[,W...]"),
-        "ensemble": Option(type=positive_int),
-        "ensemble_pessimism": Option(type=non_negative_float),
-        "pretrain_solves": Option(type=positive_int),
-        "pretrain_steps": Option(type=non_negative_int),
-        "adv_max_steps": Option(type=positive_int),
-        "adv_step_fraction": Option(type=positive_float),
-        "adv_eps": Option(type=non_negative_float),
-        "adv_optimizer": Option(choices=("pga", "adam")),
-        "adv_projection": Option(choices=("clip", "reflect")),
-        "adv_uniform_fraction": Option(type=fraction),
-        "cl_episodes": Option(type=positive_int),
-        "cl_horizon": Option(type=non_negative_int),
-        "cl_trust_region": Option(choices=("none", "lqr", "box")),
-        "cl_warmup_rounds": Option(type=non_negative_int),
-        "cl_selection": Option(choices=("farthest", "spread", "lowest", "random")),
-        "cl_tail_stride": Option(type=positive_int),
-        "cl_uniform_fraction": Option(type=fraction),
-        "cl_uniform_solves": Option(type=non_negative_int),
-        "cl_visited_fraction": Option(type=fraction),
-        "value_cap": Option(type=non_negative_float),
-        "snapshots": Option(type=budgets, metavar="N[,N...]"),
-        "eval_every": Option(type=non_negative_int),
-        "torch_threads": Option(type=positive_int),
-        "workers": Option(type=positive_int),
-        "backend": Option(choices=("local", "ray")),
-        "solver_options": Option(type=json_object, metavar="JSON"),
-    }
-
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    """Declare the ``train`` arguments: ``--out``/``--resume``, then one option per
-    :class:`~seagul_learn.training.TrainConfig` field (flag, type, default and help all from the dataclass)."""
-    from seagul_learn.training import TrainConfig
-
-    run_group = parser.add_argument_group("run directory")
-    run_group.add_argument("--out", required=True, help="run directory (created; must be new unless --resume)")
-    run_group.add_argument("--resume", action="store_true", help="continue an interrupted run in --out")
-    run_group.add_argument(
-        "--recipe",
-        choices=RECIPES,
-        default="task",
-        help="what the options not given take: 'task' the task's measured best settings (task.profile.train_recipe; "
-        "the acrobot's: the closed-loop sampler, 1,000 solves, 2 x 64; ignored when --sampler names another sampler), "
-        "'paper' the defaults shown below (the paper's settings) (default: task)",
-    )
-    config_group = parser.add_argument_group(
-        "training configuration",
-        "one option per TrainConfig field (seagul_learn.training); the defaults shown are the dataclass's (--recipe "
-        "paper), an option not given takes the task's recipe value (--recipe task)",
-    )
-    actions = add_dataclass_arguments(config_group, TrainConfig, train_options())
-    # Options the command line does not give are told apart from those it gives with a default's value.
-    config_group.set_defaults(**{a.dest: _NOT_GIVEN for a in actions if not a.required})
+    """The ``train`` subparser of ``seagul --help`` (and of the docs check): the run options. The config flags are
+    tyro's (``seagul train --help`` prints them); :func:`main` parses the command line."""
+    for action in run_parser()._actions:
+        parser._add_action(action)
+    parser.add_argument("config_flags", nargs=argparse.REMAINDER, help="TrainConfig flags (seagul train --help)")
 
 
-def config_from_args(args: argparse.Namespace) -> Any:
-    """The :class:`~seagul_learn.training.TrainConfig` of parsed arguments: the options given, the rest from the
-    task's recipe (``--recipe task``) or the dataclass defaults (``--recipe paper``)."""
+# --------------------------------------------------------------------------------------------- the old flags
+def _legacy_flags() -> dict[str, str]:
+    """``--old-flag`` -> flat field name, for every flat field of earlier versions."""
+    from seagul_learn.config import LEGACY_NAMES
+
+    flags = {"--" + name.replace("_", "-"): name for name in LEGACY_NAMES}
+    flags["--sobolev"] = "sobolev_weight"
+    return flags
+
+
+def _new_flag(name: str) -> str:
+    from seagul_learn.config import new_name
+
+    return "--" + new_name(name).replace("_", "-")
+
+
+def translate_legacy(argv: Sequence[str], sampler: str) -> tuple[list[str], list[str]]:
+    """``argv`` with the flat flags of earlier versions rewritten into the nested ones; returns the new argv and one
+    ``"--old -> --new"`` note per rewritten flag (empty: nothing to say). ``sampler`` is the sampler of the starting
+    config, which a flat ``--sampler NAME`` replaces; flat flags of another sampler are dropped (noted)."""
+    from seagul_learn.config import LEGACY_NAMES
+
+    flags = _legacy_flags()
+    args = _split_equals(argv)
+    chosen = sampler
+    for i, arg in enumerate(args[:-1]):
+        if arg == "--sampler":
+            chosen = args[i + 1]
+    out: list[str] = []
+    notes: list[str] = []
+    i = 0
+    while i < len(args):
+        arg = args[i]
+        if arg == "--sampler" and i + 1 < len(args):
+            out[:0] = [f"sampler:{args[i + 1]}"]
+            notes.append(f"--sampler {args[i + 1]} -> sampler:{args[i + 1]}")
+            i += 2
+            continue
+        negated = arg.startswith("--no-") and ("--" + arg[5:]) in flags
+        name = flags.get("--" + arg[5:] if negated else arg)
+        if name is None:
+            out.append(arg)
+            i += 1
+            continue
+        owner = LEGACY_NAMES[name][2]
+        new = _new_flag(name)
+        takes_value = not negated and i + 1 < len(args) and not _is_bool_field(name)
+        value = args[i + 1] if takes_value else None
+        spelled = f"{arg} {value}" if value is not None else arg
+        if owner is not None and owner != chosen:
+            notes.append(f"{spelled} (ignored: the {chosen} sampler has no such option)")
+            i += 2 if takes_value else 1
+            continue
+        if negated:
+            head, _, last = new.rpartition(".")
+            tokens = [f"{head}.no-{last}" if head else f"--no-{new[2:]}"]
+        elif value is None:
+            tokens = [new]
+        else:
+            tokens = [new, *_values(name, value)]
+        out += tokens
+        notes.append(f"{spelled} -> {' '.join(tokens)}")
+        i += 2 if takes_value else 1
+    return out, notes
+
+
+def _split_equals(argv: Sequence[str]) -> list[str]:
+    """``--flag=value`` as ``--flag value`` (for the old flags)."""
+    flags = _legacy_flags()
+    out: list[str] = []
+    for arg in argv:
+        head, eq, value = arg.partition("=")
+        if eq and head in (*flags, "--sampler"):
+            out += [head, value]
+        else:
+            out.append(arg)
+    return out
+
+
+def _is_bool_field(name: str) -> bool:
+    """Whether the flat field ``name`` was a flag (``--name`` / ``--no-name``, no value)."""
     import dataclasses
 
-    from seagul_learn.training import TrainConfig
+    from seagul_learn.config import LEGACY_NAMES, SAMPLER_OPTIONS, SECTIONS
 
-    given = {
-        f.name: getattr(args, f.name)
-        for f in dataclasses.fields(TrainConfig)
-        if hasattr(args, f.name) and getattr(args, f.name) is not _NOT_GIVEN
-    }
-    if getattr(args, "recipe", "task") == "paper":
-        return TrainConfig(**given)
-    task = given.pop("task")
+    part, field_name, owner = LEGACY_NAMES[name]
+    cls = SAMPLER_OPTIONS[str(owner)] if part == "sampler" else SECTIONS[str(part)]
+    field = next(f for f in dataclasses.fields(cls) if f.name == field_name)
+    return isinstance(field.default, bool)
+
+
+def _values(name: str, value: str) -> list[str]:
+    """An old flag's value as the new flag takes it: comma lists as separate words, ``cl_horizon 0`` as None."""
+    if name in ("hidden", "snapshots"):
+        return [v for v in value.split(",") if v.strip()]
+    if name == "cl_horizon" and value.strip() == "0":
+        return ["None"]
+    return [value]
+
+
+# ----------------------------------------------------------------------------------------------- the parse
+def parse(argv: Sequence[str]) -> tuple[Any, argparse.Namespace]:
+    """``(TrainConfig, run options)`` of a ``seagul train`` command line (without the word ``train``).
+
+    Raises:
+        SystemExit: bad flags (status 2, tyro's or argparse's message naming the flag) or ``--help`` (status 0).
+        ValueError: a value the config refuses (naming the field), an unknown recipe, or a missing ``--task``.
+    """
+    import tyro
+
+    from seagul_learn.config import TrainConfig
+    from seagul_learn.recipes import recipe_names
+
+    parser = run_parser()
     try:
-        return TrainConfig.recipe(task, **given)
-    except ValueError as exc:
-        raise ValueError(
-            f"{exc} (the options not given come from the task's recipe, task.profile.train_recipe; --recipe paper "
-            "starts from the defaults shown by --help instead)"
-        ) from exc
+        run, rest = parser.parse_known_args(list(argv))
+    except SystemExit:
+        raise
+    wants_help = any(a in ("-h", "--help") for a in rest)
+    recipe = run.recipe
+    if recipe in RECIPE_ALIASES:
+        print(f"seagul train: --recipe {recipe} is deprecated; use --recipe {RECIPE_ALIASES[recipe]}", file=sys.stderr)
+        recipe = RECIPE_ALIASES[recipe]
+    if run.config is not None:
+        base = TrainConfig.load(run.config)
+        if run.task is not None:
+            base = base.replaced(task=run.task)
+        from_recipe = False
+    elif run.task is not None:
+        base = TrainConfig.recipe(run.task, recipe or "default")
+        from_recipe = True
+    elif wants_help:
+        base, from_recipe = TrainConfig(), False
+    else:
+        parser.error("the following arguments are required: --task (or --config)")
+    translated, notes = translate_legacy(rest, base.sampler.name)
+    if notes:
+        print(
+            "seagul train: these flags are deprecated, read as their nested spelling: " + "; ".join(notes),
+            file=sys.stderr,
+        )
+    words = [a for a in translated if a in SAMPLER_WORDS]
+    if not words and any(a.startswith("--sampler.") for a in translated):
+        words = [f"sampler:{base.sampler.name}"]  # the sampler's flags are read under its word (tyro's subcommand)
+    if words:
+        translated = [words[-1], *(a for a in translated if a not in SAMPLER_WORDS)]  # the word first: tyro's order
+        if from_recipe and words[-1] != f"sampler:{base.sampler.name}":
+            base = TrainConfig(task=base.task)  # another sampler than the recipe's: the dataclass defaults
+    if run.out is None and not wants_help:
+        parser.error("the following arguments are required: --out")
+    description = (
+        "Train a value network (SEAGuL). Run options: --out DIR (required), --resume, --task NAME|MODULE:FACTORY, "
+        f"--recipe NAME (of the task: {', '.join(recipe_names(base.task)) if run.task else 'default, paper, ...'}), "
+        "--config FILE, --solver-options JSON. The flags below default to the starting config's values."
+    )
+    config = tyro.cli(
+        TrainConfig,
+        args=translated,
+        default=base,
+        prog="seagul train",
+        description=description,
+        config=(tyro.conf.CascadeSubcommandArgs,),
+    )
+    if run.solver_options is not None:
+        config = config.replaced(solver_options=run.solver_options)
+    return config, run
 
 
-def run(args: argparse.Namespace) -> int:
-    """Train and print a summary; the last line is the run directory."""
+def config_flags(argv: Sequence[str]) -> Any:
+    """The :class:`~seagul_learn.config.TrainConfig` of a ``seagul train`` command line (tests, scripts)."""
+    return parse(argv)[0]
+
+
+def main(argv: Sequence[str]) -> int:
+    """Parse, train and print a summary; the last line is the run directory."""
     from seagul_envs.tasks import task_label
     from seagul_learn.training import train
 
-    config = config_from_args(args)
-    result = train(config, args.out, resume=args.resume)
+    config, run = parse(argv)
+    result = train(config, run.out, resume=run.resume)
     last = result.metrics[-1]
     print(
-        f"{task_label(args.task)} {config.sampler}: {result.num_solves} solves ({result.num_failures} failed), "
+        f"{task_label(config.task)} {config.sampler.name}: {result.num_solves} solves ({result.num_failures} failed), "
         f"{last.train_steps} training steps, validation mse_initial={last.mse_initial:.4g} "
         f"mse_all_knots={last.mse_all_knots:.4g}"
     )
@@ -182,9 +272,39 @@ def run(args: argparse.Namespace) -> int:
     return 0
 
 
+def config_from_args(args: argparse.Namespace) -> Any:
+    """The :class:`~seagul_learn.config.TrainConfig` of a namespace the ``seagul`` parser made for ``train`` (the
+    run options and the remaining config flags, :func:`parse`)."""
+    return parse(_argv_of(args))[0]
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run from the ``seagul`` parser's namespace (the run options and the remaining flags)."""
+    return main(_argv_of(args))
+
+
+def _argv_of(args: argparse.Namespace) -> list[str]:
+    argv: list[str] = []
+    for action in run_parser()._actions:
+        value = getattr(args, action.dest, None)
+        if value is None or value is False:
+            continue
+        option = action.option_strings[0]
+        if value is True:
+            argv.append(option)
+        elif action.dest == "solver_options":
+            argv += [option, json.dumps(value)]
+        elif action.dest == "task" and not isinstance(value, str):
+            raise ValueError("a Task object cannot be passed through the parsed namespace; call main(argv)")
+        else:
+            argv += [option, str(value)]
+    return [*argv, *getattr(args, "config_flags", [])]
+
+
 COMMAND = Command(
     name="train",
-    help="train a value network with adversarial (SEAGuL) or uniform sampling",
+    help="train a value network with adversarial (SEAGuL), closed-loop or uniform sampling",
     add_arguments=add_arguments,
     run=run,
+    main=main,
 )
