@@ -13,13 +13,11 @@ from __future__ import annotations
 import dataclasses
 import json
 import sys
-import warnings
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
-from gymnasium.utils.env_checker import check_env
 from toy_problem import ToySolver
 
 from seagul_control.evaluation import EpisodeResult, PolicySpec, evaluate, is_success, start_grid
@@ -40,7 +38,7 @@ from seagul_learn.cli import main
 from seagul_learn.parallel import solve_many
 from seagul_learn.solving import solver_key, trajopt_batch_solver
 from seagul_learn.training import TrainConfig, train, validation_dataset
-from seagul_learn.trajopt import TrajectoryOptimizer, TrajOptConfig
+from seagul_learn.trajopt import TrajOptConfig
 from seagul_learn.value_network import ValueNetwork
 
 EXAMPLE = Path(__file__).resolve().parents[1] / "examples" / "custom_system.py"
@@ -142,24 +140,8 @@ def test_a_new_task_gets_working_defaults(task: Task) -> None:
 
 
 # ----------------------------------------------------------------------------------------- env, solve, parallel
-def test_the_env_checker_is_clean(task: Task) -> None:
-    env = make_env(task)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        check_env(env.unwrapped)
-    others = [str(w.message) for w in caught if "symmetric and normalized" not in str(w.message)]
-    assert others == []
-    obs, info = env.reset(options={"state": np.zeros(4)})
-    assert obs.shape == (5,) and info["time_to_go"] == 1.0
-
-
-def test_solve_and_two_workers_give_identical_results(task: Task, starts: np.ndarray) -> None:
-    one = TrajectoryOptimizer(task, **SOLVER).solve(starts[0])
-    assert one.success and np.isfinite(one.grad_x).all()
-    serial = solve_many(task, starts, workers=1, progress=False, solver_options=SOLVER)
-    parallel = solve_many(task, starts, workers=2, progress=False, solver_options=SOLVER)
-    _same_results(serial, parallel)
-    _same_results([one], serial[:1])
+# make_env and the env checker, solve_many with 1 and 2 workers and a single solve equal to the batch's first: the
+# conformance battery runs them on this task (tests/test_conformance.py, "custom-cartpole").
 
 
 @pytest.mark.ray

@@ -1,8 +1,30 @@
-"""Conformance battery of every registered seagul Gymnasium id (in the spirit of dm_control's ``suite_test.py``).
+"""Conformance battery: every registered task and env id, and custom tasks, through one set of checks.
 
-The ids are read from Gymnasium's registry (every id starting with ``Seagul``), so an env registered at import time
-is covered without editing this file; ``REGISTERED_TASK`` adds an id made by ``register_task`` (a small pendulum
-registered for the duration of each test), which covers the generic ``TaskEnv``. For each id:
+After dm_control's ``suite_test.py``: the checks are written once and parametrised over the registries, so a task
+added with ``register_task`` or to ``seagul_envs.tasks`` is covered without editing this file, and a check added
+here runs on every task. Two parametrisations:
+
+**Tasks** (``TASKS``): every name of ``available_tasks()``, plus two tasks defined the way a user defines one
+(docs/tutorials/custom-system.md): the free-time pendulum below and the cart-pole of ``examples/custom_system.py``,
+loaded from the file and shrunk to a 1 s problem (``test_custom_system.make_small_cartpole``). For each task:
+
+* ``validate_task`` accepts it; its goal, start box X0, time range and sampled starts are consistent, the dynamics
+  are finite at a start and the terminal cost is 0 at the goal;
+* the CasADi derivatives of the dynamics ``f(x, u)``, the stage cost ``l(x, u)`` and the terminal cost ``l_f(x)``
+  (what the NLP solvers and the value labels ``grad_x`` are built on) equal central finite differences at starts
+  drawn from X0 and inputs drawn from the input box;
+* ``make_env(task)`` passes Gymnasium's env checker, with observations ``[x, time to go]`` of shape ``(nx + 1,)``;
+* the MPC protocol of SB3 predictors, ``predict(obs, state=None, episode_start=None, deterministic=True) ->
+  (actions, state)``, on one observation and on a batch, for the limited-lookahead MPC (interpreted, 3 steps, the
+  task's terminal cost) and the LQR reference: action shapes, bounds, the state passed through, and the same
+  action again after ``episode_start``;
+* ``solve_many`` gives bit-identical results with 1 and 2 local workers, in input order (interpreted solvers, times
+  to go at both ends of T0), equal to a ``TrajectoryOptimizer``'s own solve, and on Ray (marked ``ray``) the same
+  as locally.
+
+**Env ids** (``IDS``): every id of Gymnasium's registry starting with ``Seagul``, so an env registered at import
+time is covered, plus ``REGISTERED_TASK``, an id made by ``register_task`` (the pendulum, registered for the
+duration of each test), which covers the generic ``TaskEnv``. For each id:
 
 * ``gymnasium.utils.env_checker.check_env`` passes on the unwrapped env;
 * ``spec.max_episode_steps`` is the task's longest admissible episode, ``ceil(max T0 / control_period)``, and
@@ -22,8 +44,9 @@ import dataclasses
 import math
 import re
 import warnings
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
+from typing import Any
 
 import casadi as ca
 import gymnasium as gym
@@ -32,7 +55,12 @@ import pytest
 from gymnasium.utils.env_checker import check_env
 
 import seagul_envs
-from seagul_envs import Task, register_task, unregister_task
+from seagul_control.lqr import LQRPolicy
+from seagul_control.mpc import LimitedLookaheadMPC
+from seagul_envs import Task, available_tasks, make_env, make_task, register_task, unregister_task, validate_task
+from seagul_learn.parallel import solve_many
+from seagul_learn.results import SolveResult
+from seagul_learn.trajopt import TrajectoryOptimizer
 
 REGISTERED_TASK = "<register_task>"
 """Stands for the id that ``register_task`` gives the pendulum below (registered only while a test uses it)."""
@@ -342,3 +370,241 @@ def test_the_values_a_docstring_names_are_the_code_s(env_id: str) -> None:
         checked.append(name)
     if env_id in seagul_envs.ENV_IDS:  # the built-ins name their parameters
         assert len(checked) >= 10, checked
+
+
+# ================================================================================================ the task battery
+def _builtin(name: str) -> Callable[[], Task]:
+    return lambda: make_task(name)
+
+
+def _small_cartpole() -> Task:
+    from test_custom_system import make_small_cartpole  # the tutorial's task, loaded from examples/ as --task does
+
+    return make_small_cartpole()
+
+
+TASKS: dict[str, Callable[[], Task]] = {
+    **{name: _builtin(name) for name in available_tasks()},
+    "custom-pendulum": _make_pendulum_task,
+    "custom-cartpole": _small_cartpole,
+}
+"""Every registered task by its name, and the two custom ones (by a label that no registered name can take)."""
+
+SOLVER: dict[str, Any] = {"codegen": False, "plan": ("ipopt:line",), "multi_start": "never"}
+"""One interpreted IPOPT attempt per solve: the battery compiles nothing (the compiled libraries and the tasks'
+solve plans have tests of their own), and the contract checked here, the same result whatever the workers, holds
+for any solver."""
+
+
+@pytest.fixture(params=list(TASKS))
+def task(request: pytest.FixtureRequest) -> Task:
+    return TASKS[request.param]()
+
+
+def test_every_registered_task_is_in_the_battery() -> None:
+    assert set(available_tasks()) <= set(TASKS)
+    assert not set(TASKS) - set(available_tasks()) & set(available_tasks())
+
+
+def test_the_task_is_valid_and_its_sets_are_consistent(task: Task) -> None:
+    assert validate_task(task) is task
+    if task.name in available_tasks():
+        assert make_task(task.name) is make_task(task.name)  # the registry builds a task once
+    assert task.goal.shape == (task.nx,)
+    assert task.x0_low.shape == task.x0_high.shape == (task.nx,)
+    assert np.all(task.x0_low <= task.x0_high)
+    lo, hi = task.tau_range
+    assert 0 < lo <= task.tau_nominal <= hi
+    x = task.sample_x0(np.random.default_rng(0))
+    assert task.in_x0(x)
+    xdot = np.asarray(task.dynamics(x, np.zeros(task.nu))).ravel()
+    assert xdot.shape == (task.nx,) and np.all(np.isfinite(xdot))
+    assert task.terminal_cost_value(task.goal) == pytest.approx(0.0)
+
+
+def _points(task: Task, n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:
+    """``n`` pairs (start in X0, input in the input box)."""
+    rng = np.random.default_rng(seed)
+    xs = task.sample_x0(rng, n)
+    us = rng.uniform(task.u_low, task.u_high, size=(n, task.nu))
+    return list(zip(xs, us, strict=True))
+
+
+def _central_difference(fun: Callable[[np.ndarray], np.ndarray], z: np.ndarray) -> np.ndarray:
+    """Jacobian of ``fun`` at ``z`` by central differences, step ``1e-6 max(1, |z_i|)`` (error O(h^2) ~ 1e-12
+    relative, rounding ~1e-10 relative: far below the tolerance of the comparison)."""
+    columns = []
+    for i in range(z.size):
+        h = 1e-6 * max(1.0, abs(float(z[i])))
+        dz = np.zeros_like(z)
+        dz[i] = h
+        columns.append((fun(z + dz) - fun(z - dz)) / (2 * h))
+    return np.stack(columns, axis=-1)
+
+
+def _assert_jacobian(name: str, exact: np.ndarray, fd: np.ndarray) -> None:
+    scale = 1.0 + float(np.abs(exact).max())
+    np.testing.assert_allclose(exact, fd, rtol=1e-5, atol=1e-6 * scale, err_msg=name)
+
+
+def test_dynamics_and_cost_derivatives_match_central_differences(task: Task) -> None:
+    """The solvers and the value labels use CasADi's derivatives of the task's functions; they must be the
+    derivatives of the functions the env simulates (a kink, a branch or a stale hand-written Jacobian shows here)."""
+    x, u = ca.SX.sym("x", task.nx), ca.SX.sym("u", task.nu)
+    f, l, lf = task.dynamics(x, u), task.stage_cost(x, u), task.terminal_cost(x)
+    exact = ca.Function(
+        "derivatives",
+        [x, u],
+        [ca.jacobian(f, x), ca.jacobian(f, u), ca.gradient(l, x), ca.gradient(l, u), ca.gradient(lf, x)],
+    )
+
+    for x0, u0 in _points(task, 4, seed=21):
+        fx, fu, lx, lu, lfx = (np.asarray(m, dtype=float) for m in exact(x0, u0))
+        assert np.all(np.isfinite(fx)) and np.all(np.isfinite(fu))
+        fd = _finite_differences(task, x0, u0)
+        _assert_jacobian("df/dx", fx, fd["df/dx"])
+        _assert_jacobian("df/du", fu, fd["df/du"])
+        _assert_jacobian("dl/dx", lx.ravel(), fd["dl/dx"].ravel())
+        _assert_jacobian("dl/du", lu.ravel(), fd["dl/du"].ravel())
+        _assert_jacobian("dlf/dx", lfx.ravel(), fd["dlf/dx"].ravel())
+
+
+def _finite_differences(task: Task, x0: np.ndarray, u0: np.ndarray) -> dict[str, np.ndarray]:
+    """The same five derivatives as central differences of the numeric functions at ``(x0, u0)``."""
+
+    def num(fun: ca.Function, *args: np.ndarray) -> np.ndarray:
+        return np.asarray(fun(*args), dtype=float).ravel()
+
+    return {
+        "df/dx": _central_difference(lambda z: num(task.dynamics, z, u0), x0),
+        "df/du": _central_difference(lambda z: num(task.dynamics, x0, z), u0),
+        "dl/dx": _central_difference(lambda z: num(task.stage_cost, z, u0), x0),
+        "dl/du": _central_difference(lambda z: num(task.stage_cost, x0, z), u0),
+        "dlf/dx": _central_difference(lambda z: num(task.terminal_cost, z), x0),
+    }
+
+
+def test_the_comparison_catches_a_wrong_derivative() -> None:
+    """Guard: a Jacobian off by 1e-4 relative in one entry fails the comparison above."""
+    exact = np.array([[2.0, -1.0], [0.5, 3.0]])
+    wrong = exact.copy()
+    wrong[1, 0] *= 1 + 1e-4
+    with pytest.raises(AssertionError, match="df/dx"):
+        _assert_jacobian("df/dx", wrong, exact)
+
+
+def test_make_env_passes_the_env_checker(task: Task) -> None:
+    env = make_env(task)
+    assert env.unwrapped.task is task  # type: ignore[attr-defined]
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        check_env(env.unwrapped)
+    unexpected = [str(w.message) for w in caught if not _ACTION_SCALE_RECOMMENDATION.search(str(w.message))]
+    assert unexpected == []
+    assert env.observation_space.shape == (task.nx + 1,)
+    obs, info = env.reset(options={"state": task.x0_low})
+    assert obs.shape == (task.nx + 1,) and info["time_to_go"] == task.tau_nominal
+    np.testing.assert_array_equal(info["state"], task.x0_low)
+    env.close()
+
+
+def _observations(task: Task, n: int) -> np.ndarray:
+    """``n`` observations of the env after seeded resets (float32 ``[x, time to go]``, what a policy is given)."""
+    env = make_env(task)
+    obs = np.stack([env.reset(seed=seed)[0] for seed in range(n)])
+    env.close()
+    return obs
+
+
+def _assert_predict_protocol(policy: Any, task: Task) -> None:
+    observations = _observations(task, 2)
+    state = object()  # a recurrent policy's state: passed through untouched
+    action, out_state = policy.predict(observations[0], state=state, episode_start=np.array([True]))
+    assert out_state is state
+    assert isinstance(action, np.ndarray) and action.shape == (task.nu,) and np.all(np.isfinite(action))
+    assert np.all(task.u_low <= action) and np.all(action <= task.u_high)
+
+    actions, out_state = policy.predict(observations, episode_start=np.array([True, True]), deterministic=True)
+    assert out_state is None and actions.shape == (2, task.nu) and np.all(np.isfinite(actions))
+    assert np.all(task.u_low <= actions) and np.all(actions <= task.u_high)
+    # A new episode from the same observation: the same action (no state kept across episode starts).
+    np.testing.assert_array_equal(actions[0], action)
+    again, _ = policy.predict(observations, episode_start=np.array([True, True]))
+    np.testing.assert_array_equal(again, actions)
+    # Continuing without episode starts (warm starts, where kept) still answers every env.
+    cont, _ = policy.predict(observations, episode_start=np.array([False, False]))
+    assert cont.shape == (2, task.nu) and np.all(np.isfinite(cont))
+
+
+def test_the_lookahead_mpc_follows_the_predict_protocol(task: Task) -> None:
+    mpc = LimitedLookaheadMPC(task, None, horizon=3, jit=False)
+    _assert_predict_protocol(mpc, task)
+    assert len(mpc.last_info) == 2
+
+
+def test_the_lqr_reference_follows_the_predict_protocol(task: Task) -> None:
+    _assert_predict_protocol(LQRPolicy(task), task)
+
+
+def _assert_same_results(a: list[SolveResult], b: list[SolveResult]) -> None:
+    """Every field of every result equal bit for bit (NaNs equal), the wall-clock ``solve_time`` excepted."""
+    assert len(a) == len(b)
+    for i, (ra, rb) in enumerate(zip(a, b, strict=True)):
+        for f in dataclasses.fields(SolveResult):
+            if f.name == "solve_time":
+                continue
+            va, vb = getattr(ra, f.name), getattr(rb, f.name)
+            if isinstance(va, np.ndarray | float):
+                np.testing.assert_array_equal(va, vb, err_msg=f"result {i}: {f.name}")
+            else:
+                assert va == vb, f"result {i}: {f.name}: {va!r} != {vb!r}"
+
+
+def _batch(task: Task) -> tuple[np.ndarray, np.ndarray]:
+    """Two starts in X0 with times to go at both ends of T0 (a free final time's range): one chunk per worker."""
+    starts = task.sample_x0(np.random.default_rng(11), 2)
+    return starts, np.array(task.tau_range, dtype=float)
+
+
+def test_solve_many_is_bit_identical_for_one_and_two_workers(task: Task) -> None:
+    starts, taus = _batch(task)
+    serial = solve_many(task, starts, taus, workers=1, progress=False, solver_options=SOLVER)
+    parallel = solve_many(task, starts, taus, workers=2, progress=False, solver_options=SOLVER)
+    assert all(r.success for r in serial)  # compare real solutions, not only failures
+    _assert_same_results(serial, parallel)
+    for r, x, t in zip(parallel, starts, taus, strict=True):  # input order is kept
+        np.testing.assert_array_equal(r.x_init, x)
+        assert r.tau == t
+    # One optimizer of the user's own: the batch's first result, with finite value gradients.
+    one = TrajectoryOptimizer(task, **SOLVER).solve(starts[0], taus[0])
+    _assert_same_results([one], serial[:1])
+    assert not one.success or (np.isfinite(one.grad_x).all() and np.isfinite(one.grad_tau))
+
+
+@pytest.mark.ray
+def test_solve_many_on_ray_equals_the_local_backend() -> None:
+    """Every task of the battery in one private Ray session (starting Ray costs more than the solves)."""
+    ray = pytest.importorskip("ray")
+    import os
+
+    from seagul_learn import parallel
+
+    if ray.is_initialized():
+        ray.shutdown()
+    address = os.environ.pop("RAY_ADDRESS", None)
+    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    try:
+        for label, factory in TASKS.items():
+            task = factory()
+            starts, taus = _batch(task)
+            local = solve_many(task, starts, taus, workers=1, progress=False, solver_options=SOLVER)
+            remote = solve_many(task, starts, taus, workers=2, backend="ray", progress=False, solver_options=SOLVER)
+            try:
+                _assert_same_results(local, remote)
+            except AssertionError as err:
+                raise AssertionError(f"{label}: {err}") from err
+    finally:
+        parallel.shutdown_ray_pool()
+        ray.shutdown()
+        if address is not None:
+            os.environ["RAY_ADDRESS"] = address
