@@ -268,8 +268,10 @@ def _prepare_run_dir(out: Path, config: TrainConfig, resume: bool, task: Task) -
                 "content: a parameter, bound, cost or setting differs); resume with the task the run was made with, "
                 "or start a new run directory"
             )
-        wanted = config.result_fields()
-        diff = sorted(k for k in wanted if json.dumps(wanted[k]) != json.dumps(stored.get(k)))
+        wanted, stored = _dotted(config.result_fields()), _dotted(stored)
+        diff = sorted(
+            k for k in wanted.keys() | stored.keys() if json.dumps(wanted.get(k)) != json.dumps(stored.get(k))
+        )
         if diff:
             details = ", ".join(f"{k}: stored {stored.get(k)!r} vs {wanted[k]!r}" for k in diff)
             raise ValueError(f"cannot resume {str(out)!r} with a different configuration ({details})")
@@ -278,6 +280,17 @@ def _prepare_run_dir(out: Path, config: TrainConfig, resume: bool, task: Task) -
     out.mkdir(parents=True, exist_ok=True)
     payload = {**config.to_dict(), "task_fingerprint": task.fingerprint()}
     atomic_write_text(config_path, json.dumps(payload, indent=2, sort_keys=True))
+
+
+def _dotted(data: dict[str, Any], prefix: str = "") -> dict[str, Any]:
+    """Nested config data as ``{"part.field": value}`` (a resume's differences are named field by field)."""
+    out: dict[str, Any] = {}
+    for key, value in data.items():
+        if isinstance(value, dict) and key != "solver_options":
+            out.update(_dotted(value, f"{prefix}{key}."))
+        else:
+            out[f"{prefix}{key}"] = value
+    return out
 
 
 def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver, solver_name: str) -> TrainResult:
