@@ -37,7 +37,7 @@ import importlib
 import threading
 import warnings
 from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -50,7 +50,7 @@ from tqdm.auto import tqdm
 import seagul_envs
 from seagul_control.do_mpc_policy import DoMPCPolicy
 from seagul_control.lqr import LQRPolicy
-from seagul_control.mpc import FullHorizonMPC, LimitedLookaheadMPC
+from seagul_control.mpc import FullHorizonMPC, FullHorizonOptions, LimitedLookaheadMPC, MPCOptions
 from seagul_control.value_function import CasadiValueFunction
 from seagul_envs.tasks import BUILTIN_TASKS, available_tasks, file_task_modules, make_task, resolve_task
 from seagul_envs.tasks.acrobot import SUCCESS_DISTANCE as ACROBOT_SUCCESS_DISTANCE
@@ -315,9 +315,20 @@ def build_lqr_policy(task: Task, spec: PolicySpec) -> LQRPolicy:
     return LQRPolicy(task, **spec.option_dict())
 
 
+def _split_options(options_class: Any, options: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
+    """A spec's flat options as ``(options_class(...), keywords)``: the fields of the options object (solver,
+    terminal cost, ...) and the constructor's own keywords (``trust_region``, ``model_params``, ...)."""
+    names = {f.name for f in fields(options_class)}
+    return (
+        options_class(**{k: v for k, v in options.items() if k in names}),
+        {k: v for k, v in options.items() if k not in names},
+    )
+
+
 def build_full_horizon_policy(task: Task, spec: PolicySpec) -> FullHorizonMPC:
     """``"full"``: :class:`~seagul_control.mpc.FullHorizonMPC` with the spec's options."""
-    return FullHorizonMPC(task, **spec.option_dict())
+    options, keywords = _split_options(FullHorizonOptions, spec.option_dict())
+    return FullHorizonMPC(task, options, **keywords)
 
 
 def build_lookahead_policy(
@@ -328,9 +339,10 @@ def build_lookahead_policy(
 
     The builder of the learned kind (``"mpc"`` with a value network file, :mod:`seagul_learn.policies`) loads the
     network and calls this with it."""
-    options = spec.option_dict()
-    horizon = int(options.pop("horizon", default_horizon(task)))
-    return LimitedLookaheadMPC(task, value_function, horizon, **options)
+    flat = spec.option_dict()
+    horizon = int(flat.pop("horizon", default_horizon(task)))
+    options, keywords = _split_options(MPCOptions, flat)
+    return LimitedLookaheadMPC(task, value_function, horizon, options, **keywords)
 
 
 def build_do_mpc_policy(task: Task, spec: PolicySpec) -> DoMPCPolicy:

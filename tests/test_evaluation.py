@@ -28,7 +28,7 @@ from seagul_control.evaluation import (
     start_grid,
 )
 from seagul_control.lqr import LQRPolicy
-from seagul_control.mpc import FullHorizonMPC
+from seagul_control.mpc import FullHorizonMPC, FullHorizonOptions
 from seagul_envs import make_task
 from seagul_learn import policies, report
 from seagul_learn.cli import main
@@ -305,19 +305,19 @@ def test_full_horizon_oracle_with_model_params_equals_the_rebuilt_robot():
     task = make_task("acrobot")
     robot = task.parameters.high
     x = np.array([np.pi - 0.3, 0.2, 0.1, -0.1])
-    opts = {"solver": "ipopt", "solver_options": {"ipopt.max_wall_time": 10.0}}
-    shared = FullHorizonMPC(task, model_params=True, warm_start=False, **opts)
+    opts = FullHorizonOptions(solver="ipopt", solver_options={"ipopt.max_wall_time": 10.0}, warm_start=False)
+    shared = FullHorizonMPC(task, opts, model_params=True)
     shared.set_robot(robot)
     u_shared, info = shared.act(x, 1.0)
-    u_rebuilt, _ = FullHorizonMPC(task.with_params(robot), warm_start=False, **opts).act(x, 1.0)
+    u_rebuilt, _ = FullHorizonMPC(task.with_params(robot), opts).act(x, 1.0)
     assert info.success
     np.testing.assert_allclose(u_shared, u_rebuilt, rtol=1e-6, atol=1e-8)
     shared.set_robot(None)
     u_model, _ = shared.act(x, 1.0)
-    u_plain, _ = FullHorizonMPC(task, warm_start=False, **opts).act(x, 1.0)
+    u_plain, _ = FullHorizonMPC(task, opts).act(x, 1.0)
     np.testing.assert_allclose(u_model, u_plain, rtol=1e-6, atol=1e-8)
     with pytest.raises(ValueError, match="set_robot needs FullHorizonMPC"):
-        FullHorizonMPC(task, **opts).set_robot(robot)
+        FullHorizonMPC(task, opts).set_robot(robot)
 
 
 @pytest.mark.slow
