@@ -38,7 +38,7 @@ def main() -> None:
         ),
     )
     # The saved model as a user loads it, on starts it never saw.
-    from seagul_control.evaluation import SB3Policy
+    from seagul_learn.policies import SB3Policy
 
     task = task_of_env(config.env_id)
     policy = SB3Policy(task, summary["model"], algo=config.algo)
