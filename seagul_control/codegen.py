@@ -1,7 +1,7 @@
 """Compiled CasADi code: C generation, compilation and the on-disk cache shared by every solver in seagul.
 
 Two routes, one cache directory (:func:`codegen_cache_dir`: ``$SEAGUL_CACHE_DIR`` or ``~/.cache/seagul/casadi``,
-i.e. :func:`seagul_control._io.cache_dir`):
+i.e. :func:`seagul_control.io.cache_dir`):
 
 * :func:`compile_nlp_library` generates C for a built NLP solver's functions (or a tuple of plain Functions),
   compiles it once per distinct source and returns the shared library
@@ -30,8 +30,8 @@ from typing import Any
 
 import casadi as ca
 
-from seagul_control import _io
-from seagul_control._io import atomic_write_text
+from seagul_control import io as _io
+from seagul_control.io import atomic_write_text
 
 #: Flags of the cached C compilation: ``-O1`` compiles the ~1.5 MB generated source in about half the time of
 #: ``-O2`` for the same solve speed (measured on the acrobot, docs/experiments/trajopt.md).

@@ -39,7 +39,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from seagul_control._io import atomic_write_bytes
+from seagul_control.io import atomic_write_bytes
 
 FORMAT_TAG = "seagul-value-network"
 ENSEMBLE_FORMAT_TAG = "seagul-value-ensemble"

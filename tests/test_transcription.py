@@ -255,7 +255,7 @@ def test_free_step_bounds_and_stored_guess() -> None:
 def test_one_cache_directory_for_compiled_code_and_data(monkeypatch: pytest.MonkeyPatch, tmp_path) -> None:
     import seagul_control.mpc as mpc_mod
     import seagul_learn.training as training
-    from seagul_control import _io
+    from seagul_control import io as _io
 
     monkeypatch.delenv("SEAGUL_CACHE_DIR", raising=False)
     monkeypatch.setenv("HOME", str(tmp_path / "home"))
@@ -275,7 +275,7 @@ def test_one_cache_directory_for_compiled_code_and_data(monkeypatch: pytest.Monk
 
 def test_io_helpers_import_neither_torch_nor_casadi() -> None:
     code = (
-        "import sys, seagul_control._io; "
+        "import sys, seagul_control.io; "
         "bad = [m for m in ('torch', 'casadi', 'seagul_learn') if m in sys.modules]; "
         "sys.exit(f'imported {bad}' if bad else 0)"
     )

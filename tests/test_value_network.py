@@ -82,7 +82,7 @@ def test_save_load_round_trip(tmp_path):
 
 
 def test_failed_save_keeps_the_previous_network(tmp_path, monkeypatch):
-    from seagul_control import _io
+    from seagul_control import io as _io
 
     old, new = _trained_like_network(seed=0), _trained_like_network(seed=1)
     path = old.save(tmp_path / "net.pt")

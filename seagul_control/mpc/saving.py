@@ -36,7 +36,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 
-from seagul_control._io import atomic_write_bytes
+from seagul_control.io import atomic_write_bytes
 from seagul_envs.tasks.base import Task
 
 FORMAT_TAG = "seagul-mpc"
