@@ -39,13 +39,46 @@ import warnings
 from collections.abc import Mapping
 from dataclasses import dataclass, field, fields, replace
 from pathlib import Path
-from typing import Annotated, Any, ClassVar, Literal, Union
+from typing import Annotated, Any, ClassVar, Union
 
 import tyro
 
 from seagul_envs import Task, available_tasks, resolve_task, validate_task
 from seagul_learn.closed_loop import ClosedLoopOptions
+from seagul_learn.config_legacy import LEGACY_NAMES, _legacy_value, flat_fields, flat_name, new_name
+from seagul_learn.config_parts import (
+    SECTIONS,
+    LossConfig,
+    NetworkConfig,
+    RefitConfig,
+    RuntimeConfig,
+    ScheduleConfig,
+    SelectionConfig,
+    _check,
+)
 from seagul_learn.samplers import AdversarialOptions, SamplerOptions, UniformOptions
+
+__all__ = [
+    "LEGACY_NAMES",
+    "SAMPLERS",
+    "SAMPLER_OPTIONS",
+    "SECTIONS",
+    "AdversarialOptions",
+    "ClosedLoopOptions",
+    "LossConfig",
+    "NetworkConfig",
+    "RefitConfig",
+    "RuntimeConfig",
+    "SamplerOptions",
+    "ScheduleConfig",
+    "SelectionConfig",
+    "TrainConfig",
+    "UniformOptions",
+    "accepted_names",
+    "flat_fields",
+    "flat_name",
+    "new_name",
+]
 
 SAMPLERS = ("uniform", "adversarial", "closed-loop")
 """The samplers' names, in the order of :data:`SAMPLER_OPTIONS`."""
@@ -64,328 +97,6 @@ SamplerChoice = Union[  # noqa: UP007 (tyro reads the Annotated members of a typ
 ]
 """The type of ``TrainConfig.sampler``: one options class; ``seagul train`` offers them as ``sampler:uniform``,
 ``sampler:adversarial`` and ``sampler:closed-loop``."""
-
-
-def _check(ok: bool, message: str) -> None:
-    if not ok:
-        raise ValueError(message)
-
-
-def _finite_nonneg(value: float) -> bool:
-    return value >= 0 and math.isfinite(value)
-
-
-@dataclass(frozen=True)
-class NetworkConfig:
-    """The value function's architecture."""
-
-    hidden: tuple[int, ...] = (32,)
-    """Hidden-layer widths of the tanh network (paper: one layer of 32)."""
-    ensemble: int = 1
-    """Networks fitted to the same data (1 = a single network; >= 2 a :class:`~seagul_learn.value_network.
-    ValueEnsemble`, whose CasADi form is pessimistic where the members disagree)."""
-    pessimism: float = 1.0
-    """Weight ``beta`` of the members' spread in an ensemble's CasADi form (``mean + beta * spread``)."""
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "hidden", tuple(int(h) for h in self.hidden))
-        _check(
-            bool(self.hidden) and all(h >= 1 for h in self.hidden),
-            f"network.hidden must be positive layer widths, got {self.hidden}",
-        )
-        _check(self.ensemble >= 1, f"network.ensemble must be >= 1 network, got {self.ensemble}")
-        _check(_finite_nonneg(self.pessimism), f"network.pessimism must be a number >= 0, got {self.pessimism}")
-
-
-@dataclass(frozen=True)
-class ScheduleConfig:
-    """Pretraining, rounds and the optimiser (paper Alg. 2 and §6; module docstring of :mod:`seagul_learn.training`)."""
-
-    solves_per_round: int = 10
-    """New solves between two training phases (paper: 10)."""
-    train_steps_per_round: int = 500
-    """Adam steps after each round of solves (paper: 500)."""
-    batch_size: int = 128
-    """Knot samples per minibatch."""
-    newest_fraction: float = 0.5
-    """Share of each minibatch drawn from the knots added in the current round (paper §5)."""
-    lr: float = 1e-3
-    """Adam learning rate."""
-    pretrain_solves: int = 10
-    """Uniform solves of the shared pretraining set (also the standardisation statistics; not part of ``budget``)."""
-    pretrain_steps: int = 100
-    """Adam steps on the pretraining set."""
-    eval_every: int = 0
-    """Also evaluate every this many training steps inside rounds (0 = after each round only)."""
-
-    def __post_init__(self) -> None:
-        for name in ("solves_per_round", "batch_size", "pretrain_solves"):
-            _check(int(getattr(self, name)) >= 1, f"schedule.{name} must be >= 1, got {getattr(self, name)}")
-        for name in ("train_steps_per_round", "pretrain_steps", "eval_every"):
-            _check(int(getattr(self, name)) >= 0, f"schedule.{name} must be >= 0, got {getattr(self, name)}")
-        _check(
-            0.0 <= self.newest_fraction <= 1.0,
-            f"schedule.newest_fraction must be in [0, 1], got {self.newest_fraction}",
-        )
-        _check(self.lr > 0 and math.isfinite(self.lr), f"schedule.lr must be a positive number, got {self.lr}")
-
-
-@dataclass(frozen=True)
-class LossConfig:
-    """The regression's loss and labels (module docstring of :mod:`seagul_learn.training`)."""
-
-    sobolev_weight: float = 0.0
-    """Weight ``w`` of the gradient-matching (Sobolev) term; 0 = plain MSE."""
-    value_cap: float = 0.0
-    """Labels above this value are clipped to it and their gradient labels dropped (0 = off): a tail problem from a
-    far-off query can cost 1e4 and would otherwise swamp the loss; the clipped label still says "expensive"."""
-    grad_label_max: float = 0.0
-    """Drop gradient labels whose standardised norm ``|dV/dx * in_std / out_std|`` exceeds this (0 = keep all):
-    near-singular tails carry dual gradients orders of magnitude above the rest that would dominate the Sobolev term;
-    their value labels stay."""
-    renormalize: bool = False
-    """Re-fit the standardisation to the whole buffer (labels capped at ``value_cap``) after each round's solves,
-    rescaling the first and last layers so the network's function is unchanged (PopArt). Without it the statistics of
-    the pretraining solves stay, and closed-loop tail labels land tens of standard deviations out."""
-
-    def __post_init__(self) -> None:
-        _check(_finite_nonneg(self.sobolev_weight), f"loss.sobolev_weight must be >= 0, got {self.sobolev_weight}")
-        _check(_finite_nonneg(self.value_cap), f"loss.value_cap must be a number >= 0 (0 = off), got {self.value_cap}")
-        _check(
-            _finite_nonneg(self.grad_label_max),
-            f"loss.grad_label_max must be a number >= 0 (0 = off), got {self.grad_label_max}",
-        )
-
-
-@dataclass(frozen=True)
-class RefitConfig:
-    """The final refit: a fresh network fitted to the whole buffer after the last round (docs/experiments/
-    closed-loop.md)."""
-
-    steps: int = 0
-    """Adam steps of the refit (the seed's initial weights, uniform minibatches, cosine learning-rate decay, the
-    buffer's standardisation); it becomes ``network.pt`` and the loop's network is kept as ``network_loop.pt``
-    (0 = off)."""
-    ensemble: int = 0
-    """Members of the refit (0 or 1: one network; >= 2: a :class:`~seagul_learn.value_network.ValueEnsemble` of that
-    many fits from their own initial weights, with ``network.pessimism``). The members' errors are partly
-    independent, so the planner finds fewer under-estimates in their mean; the loop's and the collecting refits'
-    networks stay single unless ``network.ensemble`` is set."""
-    candidates: int = 0
-    """Fit this many members (``> ensemble``) and deploy the ``ensemble`` of them whose MPC succeeds most often in
-    closed loop from training starts (:class:`SelectionConfig`): refits of one buffer differ by tens of points of
-    closed-loop success. Kept as ``network_candidates.pt``, the scores in ``network_selection.json`` (0 = off)."""
-
-    def __post_init__(self) -> None:
-        _check(self.steps >= 0, f"refit.steps must be >= 0, got {self.steps}")
-        _check(
-            self.ensemble >= 0 and (self.ensemble < 2 or self.steps > 0),
-            f"refit.ensemble must be >= 0 and needs refit.steps > 0, got {self.ensemble}",
-        )
-        _check(
-            not self.candidates or (self.ensemble >= 2 and self.candidates > self.ensemble),
-            "refit.candidates must exceed refit.ensemble (>= 2) or be 0, got "
-            f"{self.candidates} candidates for {self.ensemble} members",
-        )
-        _check(
-            not self.candidates or math.comb(self.candidates, self.ensemble) <= 252,
-            f"refit.candidates: C({self.candidates}, {self.ensemble}) subsets is too many to try (at most 252)",
-        )
-
-
-@dataclass(frozen=True)
-class SelectionConfig:
-    """How the members of ``refit.candidates`` are chosen: closed-loop episodes of the deployed MPC (horizon and
-    guard of the closed-loop options) from training starts drawn from X0, never an evaluation set."""
-
-    episodes: int = 100
-    """Closed-loop episodes per candidate subset."""
-    finalists: int = 0
-    """Second stage: the best this many subsets fly ``final_episodes`` more starts and are ranked on all their
-    episodes (0 = one stage)."""
-    final_episodes: int = 0
-    """Episodes of the second stage per finalist."""
-    slice_fraction: float = 0.0
-    """Share of the starts (both stages) drawn on the evaluation grid's slice of X0 instead of over all of X0
-    (``seagul_control.evaluation.sample_grid_slice``: the acrobot's grid starts at rest); random draws, never the
-    grid's points."""
-    jit: bool = True
-    """Compile the selection's MPC (False: interpreted, for tests)."""
-
-    def __post_init__(self) -> None:
-        _check(self.episodes >= 1, f"selection.episodes must be >= 1, got {self.episodes}")
-        _check(self.finalists >= 0, f"selection.finalists must be >= 0, got {self.finalists}")
-        _check(self.final_episodes >= 0, f"selection.final_episodes must be >= 0, got {self.final_episodes}")
-        _check(
-            0.0 <= self.slice_fraction <= 1.0, f"selection.slice_fraction must be in [0, 1], got {self.slice_fraction}"
-        )
-
-
-@dataclass(frozen=True)
-class RuntimeConfig:
-    """How the run is executed. Only ``torch_threads`` can change the results; the other fields may differ between an
-    interrupted run and its resumption."""
-
-    workers: int = 1
-    """Parallel solver processes (results do not depend on it)."""
-    backend: Literal["local", "ray"] = "local"
-    """``"local"`` (joblib processes) or ``"ray"``."""
-    cache_dir: str | None = None
-    """Where solved validation sets are cached (default ``$SEAGUL_CACHE_DIR`` or ``~/.cache/seagul``)."""
-    progress: bool = True
-    """Show progress bars."""
-    snapshots: tuple[int, ...] = ()
-    """Budgets (solves) after whose round ``network_<solves>.pt`` is saved (success-per-solve curves from one run)."""
-    torch_threads: int = 1
-    """Torch intra-op threads during training (fixed so results never depend on the machine's core count)."""
-
-    RESUMABLE: ClassVar[tuple[str, ...]] = ("workers", "backend", "cache_dir", "progress", "snapshots")
-    """Fields that may change between an interrupted run and its resumption."""
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "snapshots", tuple(sorted({int(b) for b in self.snapshots})))
-        _check(self.workers >= 1, f"runtime.workers must be >= 1, got {self.workers}")
-        _check(self.torch_threads >= 1, f"runtime.torch_threads must be >= 1, got {self.torch_threads}")
-        _check(self.backend in ("local", "ray"), f"unknown runtime.backend {self.backend!r}; choose 'local' or 'ray'")
-        _check(
-            all(b >= 1 for b in self.snapshots), f"runtime.snapshots must be budgets >= 1, got {list(self.snapshots)}"
-        )
-
-
-#: The parts of a TrainConfig: field name -> class (``sampler`` is one of :data:`SAMPLER_OPTIONS`).
-SECTIONS: dict[str, type] = {
-    "network": NetworkConfig,
-    "schedule": ScheduleConfig,
-    "loss": LossConfig,
-    "refit": RefitConfig,
-    "selection": SelectionConfig,
-    "runtime": RuntimeConfig,
-}
-
-_ADV = "adversarial"
-_CL = "closed-loop"
-
-#: The flat field names of earlier versions -> ``(part, field, sampler)``: the part of :class:`TrainConfig` (None:
-#: top level) and the field there; ``sampler`` names the options class a ``sampler`` field belongs to.
-LEGACY_NAMES: dict[str, tuple[str | None, str, str | None]] = {
-    "solves_per_round": ("schedule", "solves_per_round", None),
-    "train_steps_per_round": ("schedule", "train_steps_per_round", None),
-    "batch_size": ("schedule", "batch_size", None),
-    "newest_fraction": ("schedule", "newest_fraction", None),
-    "lr": ("schedule", "lr", None),
-    "pretrain_solves": ("schedule", "pretrain_solves", None),
-    "pretrain_steps": ("schedule", "pretrain_steps", None),
-    "eval_every": ("schedule", "eval_every", None),
-    "sobolev_weight": ("loss", "sobolev_weight", None),
-    "value_cap": ("loss", "value_cap", None),
-    "grad_label_max": ("loss", "grad_label_max", None),
-    "renormalize": ("loss", "renormalize", None),
-    "hidden": ("network", "hidden", None),
-    "ensemble": ("network", "ensemble", None),
-    "ensemble_pessimism": ("network", "pessimism", None),
-    "refit_steps": ("refit", "steps", None),
-    "refit_ensemble": ("refit", "ensemble", None),
-    "refit_candidates": ("refit", "candidates", None),
-    "select_episodes": ("selection", "episodes", None),
-    "select_finalists": ("selection", "finalists", None),
-    "select_final_episodes": ("selection", "final_episodes", None),
-    "select_slice_fraction": ("selection", "slice_fraction", None),
-    "select_jit": ("selection", "jit", None),
-    "workers": ("runtime", "workers", None),
-    "backend": ("runtime", "backend", None),
-    "cache_dir": ("runtime", "cache_dir", None),
-    "progress": ("runtime", "progress", None),
-    "snapshots": ("runtime", "snapshots", None),
-    "torch_threads": ("runtime", "torch_threads", None),
-    **{
-        f"adv_{n}": ("sampler", n, _ADV)
-        for n in (
-            "max_steps",
-            "step_fraction",
-            "eps",
-            "optimizer",
-            "projection",
-            "uniform_fraction",
-            "ascend_tau",
-            "ascend_theta",
-            "stop_on_decrease",
-        )
-    },
-    **{
-        f"cl_{n}": ("sampler", n, _CL)
-        for n in (
-            "episodes",
-            "horizon",
-            "trust_region",
-            "warmup_rounds",
-            "selection",
-            "tail_stride",
-            "uniform_fraction",
-            "uniform_solves",
-            "jit",
-            "visited_fraction",
-            "slice_fraction",
-            "collect_refit",
-            "keep_best",
-        )
-    },
-}
-
-
-def new_name(legacy: str) -> str:
-    """The dotted place of a flat name of earlier versions (``"cl_episodes"`` -> ``"sampler.episodes"``)."""
-    part, name, _ = LEGACY_NAMES[legacy]
-    return name if part is None else f"{part}.{name}"
-
-
-def flat_name(name: str) -> str:
-    """The flat name of earlier versions for a dotted field (``"sampler.episodes"`` -> ``"cl_episodes"``; a field of
-    both sampler option classes takes the closed-loop one's); other names unchanged."""
-    if "." not in name:
-        return name
-    part, _, field_name = name.partition(".")
-    for legacy, (p, n, _owner) in sorted(LEGACY_NAMES.items(), key=lambda kv: kv[1][2] != _CL):
-        if p == part and n == field_name:
-            return legacy
-    return name
-
-
-def flat_fields(nested: Mapping[str, Any]) -> dict[str, Any]:
-    """Partial TrainConfig data (nested, as a recipe file holds it) in the flat names of earlier versions (tuples for
-    lists; ``sampler`` as its name); keys without a flat name (new fields) keep their dotted name."""
-    out: dict[str, Any] = {}
-    for key, value in nested.items():
-        if key == "sampler" and isinstance(value, Mapping):
-            out["sampler"] = value.get("name")
-            owner = value.get("name")
-            for n, v in value.items():
-                if n == "name":
-                    continue
-                legacy = next(
-                    (k for k, (p, f, o) in LEGACY_NAMES.items() if p == "sampler" and f == n and o == owner),
-                    f"sampler.{n}",
-                )
-                out[legacy] = _flat_value(legacy, v)
-        elif key in SECTIONS and isinstance(value, Mapping):
-            for n, v in value.items():
-                legacy = flat_name(f"{key}.{n}")
-                out[legacy] = _flat_value(legacy, v)
-        else:
-            out[key] = tuple(value) if isinstance(value, list) else value
-    return out
-
-
-def _flat_value(legacy: str, value: Any) -> Any:
-    if legacy == "cl_horizon" and value is None:
-        return 0
-    return tuple(value) if isinstance(value, list) else value
-
-
-def _legacy_value(legacy: str, value: Any) -> Any:
-    """A flat value in its new form (``cl_horizon = 0`` meant the task's default: ``horizon = None``)."""
-    if legacy == "cl_horizon":
-        return None if value in (0, None) else int(value)
-    return value
 
 
 def _warn(message: str, stacklevel: int) -> None:
@@ -488,7 +199,7 @@ class TrainConfig:
     one part per concern (module docstring). ``TrainConfig(task="acrobot")`` alone gives the paper's settings
     (adversarial sampler, 1 x 32 tanh, 100 solves); :meth:`recipe` a task's measured best."""
 
-    task: str | Task = "acrobot"
+    task: Annotated[str | Task, tyro.conf.Suppress] = "acrobot"
     """A registered task name (``seagul_envs.available_tasks()``) or a Task object (a custom task, or a variant of a
     built-in one); ``config.json`` stores its name and fingerprint, and a resumed run must have the same task."""
     seed: int = 0
@@ -521,7 +232,7 @@ class TrainConfig:
     """Draw uniform starts' ``tau`` from T0 instead of using the nominal value."""
     validate: bool = True
     """Solve (or load) the validation set and record validation metrics."""
-    solver_options: dict[str, Any] | None = None
+    solver_options: Annotated[dict[str, Any] | None, tyro.conf.Suppress] = None
     """Options of the trajectory optimizer (part of the validation-cache key)."""
     runtime: RuntimeConfig = field(default_factory=RuntimeConfig)
     """How the run is executed (workers, backend, cache, progress bars, snapshots, torch threads)."""
