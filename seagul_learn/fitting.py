@@ -78,7 +78,7 @@ def _as_tensors(
 
 
 def training_loss(network: ValueNetwork, batch: dict[str, torch.Tensor], sobolev_weight: float) -> torch.Tensor:
-    """The standardised value MSE plus ``sobolev_weight`` times the standardised gradient MSE (module docstring).
+    """The standardised value MSE plus ``loss.sobolev_weight`` times the standardised gradient MSE (module docstring).
 
     A network over robots takes the batch's ``theta``, and its gradient term averages over the ``nx`` state and the
     ``k`` parameter coordinates alike (``dV/dtheta`` labels standardised by theta's input scale)."""

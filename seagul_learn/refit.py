@@ -30,11 +30,11 @@ from seagul_learn.value_network import ValueEnsemble, ValueModel, ValueNetwork
 def refit(
     config: TrainConfig, task: Task, buffer: TrainingArrays, trainer: Trainer, round_index: int | None = None
 ) -> ValueModel:
-    """Fit a fresh network to the whole buffer (``TrainConfig.refit_steps``); it replaces ``trainer.network``.
+    """Fit a fresh network to the whole buffer (``TrainConfig.refit.steps``); it replaces ``trainer.network``.
 
     The fresh network starts from the seed's initial weights with the buffer's standardisation (capped labels), so
     every label is in range from the first step; minibatches are uniform over the buffer (stream
-    ``STREAM_REFIT_BATCHES``, and the round for the collecting refits of ``cl_collect_refit``) and the learning
+    ``STREAM_REFIT_BATCHES``, and the round for the collecting refits of ``sampler.collect_refit``) and the learning
     rate decays along a cosine to 0. Deterministic, so a run interrupted during the refit and resumed ends with the
     same network.
     """
@@ -74,7 +74,7 @@ _REFIT_FIELDS = frozenset(
 
 
 def candidates_key(config: TrainConfig, buffer: TrainingArrays) -> dict[str, Any]:
-    """What the candidates' refit of ``refit_candidates`` depends on (stored beside them; JSON-ready)."""
+    """What the candidates' refit of ``refit.candidates`` depends on (stored beside them; JSON-ready)."""
     key = {
         "candidates": config.refit.candidates,
         "knots": len(buffer),
@@ -86,9 +86,9 @@ def candidates_key(config: TrainConfig, buffer: TrainingArrays) -> dict[str, Any
 def refit_and_select(
     config: TrainConfig, task: Task, buffer: TrainingArrays, trainer: Trainer, out: Path
 ) -> ValueModel:
-    """``refit_candidates``: refit ``refit_candidates`` members to the whole buffer (as :func:`refit`), save them as
-    ``network_candidates.pt``, and return the ``refit_ensemble`` of them whose deployed MPC succeeds most often on
-    ``select_episodes`` training starts (:func:`seagul_learn.closed_loop.select_members`; the scores go to
+    """``refit.candidates``: refit that many members to the whole buffer (as :func:`refit`), save them as
+    ``network_candidates.pt``, and return the ``refit.ensemble`` of them whose deployed MPC succeeds most often on
+    ``selection.episodes`` training starts (:func:`seagul_learn.closed_loop.select_members`; the scores go to
     ``network_selection.json``). Deterministic (the refit, the starts and the MPC are)."""
     from seagul_learn.closed_loop import select_members
 

@@ -7,16 +7,16 @@ One run, for a :class:`TrainConfig`:
    ``(th1, th2)`` at zero velocity plus 100 uniform draws from X0; glider a 6 x 6 x 6 grid over ``(x, z, dx)`` (other
    states 0) plus 250 uniform draws; a new task by default a 10 x 10 grid over two coordinates plus 100 draws; all at
    the nominal ``tau``. The random part uses a fixed seed, so every training seed is validated on the same set.
-2. **Pretraining** (paper §6): ``pretrain_solves`` uniform solves (a stream that depends only on the seed) set the
-   network's standardisation (all their knots) and train it for ``pretrain_steps`` steps. The result depends on
-   neither the sampler nor the Sobolev weight, so every variant of a seed starts from IDENTICAL parameters. The
-   pretraining solves stay in the buffer of every variant and are not counted in ``budget``.
+2. **Pretraining** (paper §6): ``schedule.pretrain_solves`` uniform solves (a stream that depends only on the seed) set
+   the network's standardisation (all their knots) and train it for ``schedule.pretrain_steps`` steps. The result
+   depends on neither the sampler nor the Sobolev weight, so every variant of a seed starts from IDENTICAL parameters.
+   The pretraining solves stay in the buffer of every variant and are not counted in ``budget``.
 3. **Rounds**: each round the sampler spends ``min(solves_per_round, budget left)`` solves (the uniform baseline's
-   starts for this seed; adversarial chains start from a random subset of them), every knot of each successful
-   solve joins the buffer, then ``train_steps_per_round`` Adam steps follow. Failed solves are stored, counted and
+   starts for this seed; adversarial chains start from a random subset of them), every knot of each successful solve
+   joins the buffer, then ``schedule.train_steps_per_round`` Adam steps follow. Failed solves are stored, counted and
    never trained on.
 
-**Minibatches favour the newest samples** (paper §5): each minibatch of ``batch_size`` draws
+**Minibatches favour the newest samples** (paper §5): each minibatch of ``schedule.batch_size`` draws
 ``round(newest_fraction * batch_size)`` samples uniformly from the knots added this round and the rest uniformly from
 the whole buffer (with replacement), so a newest sample is drawn ``1 + f / (1 - f) * buffer / new`` times as often
 as an older one (``f = newest_fraction``; with the defaults and 10 solves per round, ~2x after 10 rounds, ~11x
@@ -30,23 +30,23 @@ i.e. the Sobolev term compares ``dy/dz`` (the gradient the network actually fits
 ``w`` weighs one standardised gradient coordinate like the standardised value; knots whose gradient label is not
 finite only enter the value term. ``w = 0`` is plain MSE.
 
-**Labels far from the pretraining set** (closed-loop tails). ``value_cap`` clips labels (their gradient labels are
-dropped), ``grad_label_max`` drops gradient labels whose standardised norm is extreme, and ``renormalize`` moves the
-standardisation to the whole buffer after each round's solves without changing the network's function
-(:meth:`ValueNetwork.renormalize`, PopArt). ``refit_steps`` finally fits a fresh network to the whole buffer
+**Labels far from the pretraining set** (closed-loop tails). ``loss.value_cap`` clips labels (their gradient labels are
+dropped), ``loss.grad_label_max`` drops gradient labels whose standardised norm is extreme, and ``loss.renormalize``
+moves the standardisation to the whole buffer after each round's solves without changing the network's function
+(:meth:`ValueNetwork.renormalize`, PopArt). ``refit.steps`` finally fits a fresh network to the whole buffer
 (docs/experiments/closed-loop.md measures all four).
 
-**Metrics** (``metrics.json`` / ``metrics.csv``): after pretraining, after every round (and every ``eval_every``
-training steps if set): ``solves`` (budget solves so far), ``train_steps`` (after pretraining), ``mse_initial`` (the
-validation starts at their full ``tau``), ``mse_all_knots`` (every per-knot label of the successful validation
-solves), ``failures`` (failed budget solves so far). MSEs are in the task's cost units squared.
+**Metrics** (``metrics.json`` / ``metrics.csv``): after pretraining, after every round (and every
+``schedule.eval_every`` training steps if set): ``solves`` (budget solves so far), ``train_steps`` (after pretraining),
+``mse_initial`` (the validation starts at their full ``tau``), ``mse_all_knots`` (every per-knot label of the successful
+validation solves), ``failures`` (failed budget solves so far). MSEs are in the task's cost units squared.
 
 **Determinism and resume.** Every random stream is a fresh ``np.random.default_rng([seed, stream, round])``; torch
 runs in float64 with a fixed thread count and draws nothing from its global RNG after the seeded initialisation.
 After each round a checkpoint (network, Adam state, start-pool position, next solve index, metrics) is written
 atomically. ``train(config, out, resume=True)`` restores it, re-runs the interrupted round from its start, and reuses
 the records that round had already stored (their requests are checked bit for bit), so a run killed at any moment
-and resumed ends with the same dataset and the same weights as an uninterrupted one, whatever ``workers`` is.
+and resumed ends with the same dataset and the same weights as an uninterrupted one, whatever ``runtime.workers`` is.
 """
 
 from __future__ import annotations
