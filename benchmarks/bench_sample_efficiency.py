@@ -27,7 +27,7 @@ import json
 import os
 import sys
 import time
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -35,16 +35,15 @@ import numpy as np
 from joblib import Parallel, delayed
 
 from seagul_learn.comparison import paired_comparison, plot_curves_with_band
+from seagul_learn.experiment.methods import METHODS, train_config
 from seagul_learn.solving import BatchSolver, CachedBatchSolver, solver_key
 from seagul_learn.training import TrainConfig, train, validation_dataset
 
-# Variants: name -> overrides of the task's base TrainConfig.
-ADVERSARIAL_DEFAULT: dict[str, Any] = {"sampler": "adversarial"}
+# Variants: name -> overrides of the task's base TrainConfig (the four samplers are the library's methods, the same
+# settings as in seagul reproduce and the closed-loop benchmark).
+ADVERSARIAL_DEFAULT: dict[str, Any] = dict(METHODS["adversarial"])
 VARIANTS: dict[str, dict[str, Any]] = {
-    "uniform": {"sampler": "uniform"},
-    "adversarial": ADVERSARIAL_DEFAULT,
-    "uniform+sobolev": {"sampler": "uniform", "sobolev_weight": 1.0},
-    "adversarial+sobolev": {**ADVERSARIAL_DEFAULT, "sobolev_weight": 1.0},
+    name: dict(METHODS[name]) for name in ("uniform", "adversarial", "uniform+sobolev", "adversarial+sobolev")
 }
 EXTRA_VARIANTS: dict[str, dict[str, Any]] = {
     "adversarial-reflect": {"sampler": "adversarial", "adv_projection": "reflect"},
@@ -108,7 +107,7 @@ def run_one(config: TrainConfig, out: Path, cache: Path) -> dict[str, Any]:
 
 def base_config(task: str, settings: Settings) -> TrainConfig:
     """The paper preset (10 solves and 500 training steps per round) with this benchmark's budget."""
-    return TrainConfig(
+    return train_config(
         task=task,
         budget=settings.budget,
         solves_per_round=10,
@@ -214,7 +213,7 @@ def main(argv: list[str] | None = None) -> int:
         # the validation set first (one process), so parallel runs only read it
         validation_dataset(make_task(task), make_solver(task, cache), solver_key(None), cache, progress=True)
         jobs = [
-            (name, seed, replace(base, seed=seed, **overrides))
+            (name, seed, train_config(base, seed=seed, **overrides))
             for name, overrides in variants.items()
             for seed in range(settings.seeds)
         ]

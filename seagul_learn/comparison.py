@@ -3,12 +3,11 @@
 Single-seed ratios between two samplers range over an order of magnitude (0.14 to 3.7 in a trial), so every
 comparison here is *paired* (same seed, same initial network, same baseline starts) and summarised by the median of
 the per-seed ratios, the fraction of seeds the first variant wins, and a two-sided Wilcoxon signed-rank test on the
-paired log-errors.
+paired log-errors: the library's one paired test, :func:`seagul_learn.experiment.statistics.paired_wilcoxon`.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
@@ -35,20 +34,21 @@ class PairedComparison:
 
 
 def paired_comparison(variant: Sequence[float], baseline: Sequence[float]) -> PairedComparison:
-    """Compare paired per-seed errors (lower is better)."""
+    """Compare paired per-seed errors (lower is better): the one paired test,
+    :func:`seagul_learn.experiment.statistics.paired_wilcoxon` on the log errors, as a :class:`PairedComparison`
+    (the keys of ``learning.json`` and of the sample-efficiency benchmark's results)."""
+    from seagul_learn.experiment.statistics import paired_wilcoxon
+
     a = np.asarray(variant, dtype=float)
     b = np.asarray(baseline, dtype=float)
     if a.shape != b.shape or a.ndim != 1 or a.size == 0:
         raise ValueError(f"need two equally long, non-empty lists of per-seed errors, got {a.shape} and {b.shape}")
     if np.any(~np.isfinite(a)) or np.any(~np.isfinite(b)) or np.any(a <= 0) or np.any(b <= 0):
         raise ValueError("per-seed errors must be finite and positive")
-    diff = np.log(a) - np.log(b)
-    p = math.nan
-    if a.size >= 2 and np.any(diff != 0):
-        from scipy.stats import wilcoxon
-
-        p = float(wilcoxon(diff).pvalue)
-    return PairedComparison(float(np.median(a / b)), float(np.mean(a < b)), p, int(a.size))
+    result = paired_wilcoxon(a, b, log=True, lower_is_better=True)
+    return PairedComparison(
+        result["median_ratio"], result["wins"] / result["seeds"], result["p_value"], result["seeds"]
+    )
 
 
 def final_metric(runs: Sequence[Mapping[str, Any]], key: str) -> list[float]:

@@ -1,10 +1,12 @@
 """The shipped controller of a task: the value network the closed-loop benchmark selected, measured and ships, and
 how it is deployed.
 
-``benchmarks/bench_closed_loop.py`` writes one block per task into ``benchmarks/results/closed_loop.json``
-(:data:`SHIPPED_RESULTS`): the shipped ``network`` (a path relative to the repository), the deployment of the
-limited-lookahead MPC it was measured in (``horizon``, ``trust_region``, ``goal_blend``, ``jit``) and what it
-measured (``success_rate`` on its ``grid``, ``heldout_success_rate``, ``median_ms``/``p95_ms`` per step, ...).
+The closed-loop benchmark (``benchmarks/bench_closed_loop.py``, its pipeline
+:mod:`seagul_learn.experiment.benchmark`: :func:`~seagul_learn.experiment.benchmark.shipped_block`) writes one block
+per task into ``benchmarks/results/closed_loop.json`` (:data:`SHIPPED_RESULTS`): the shipped ``network`` (a path
+relative to the repository), the deployment of the limited-lookahead MPC it was measured in (``horizon``,
+``trust_region``, ``goal_blend``, ``jit``) and what it measured (``success_rate`` on its ``grid``,
+``heldout_success_rate``, ``median_ms``/``p95_ms`` per step, ...).
 :func:`shipped_network` reads that block for a task; :meth:`ShippedController.spec` deploys the network exactly as
 the block says (``LimitedLookaheadMPC(task, ValueNetwork.load(network), horizon, trust_region=..., goal_blend=...,
 jit=...)``). ``seagul reproduce`` opens its report with it

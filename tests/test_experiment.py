@@ -1,4 +1,5 @@
-"""`seagul reproduce`: the whole pipeline on the smoke preset, its report, and resume after SIGKILL."""
+"""`seagul reproduce`: the whole pipeline on the smoke preset, its report, and resume after SIGKILL; the named
+methods (the shipped recipe included) it shares with the closed-loop benchmark."""
 
 from __future__ import annotations
 
@@ -351,3 +352,116 @@ def test_old_experiment_file_with_ppo_model_resumes(sb3_models: dict[str, str], 
     # A new run's stored config (a JSON list of models) round-trips to the same config.
     config = ExperimentConfig(preset="smoke", sb3_models=(sb3_models["sac_a"],), sb3_algo="SAC")
     assert ExperimentConfig(**json.loads(json.dumps(config.to_dict()))) == config
+
+
+# --------------------------------------------------------------------------------------- methods and recipes
+def test_methods_shipped_trains_the_tasks_recipe_on_its_schedule(tmp_path: Path) -> None:
+    """``--methods shipped,uniform``: the shipped recipe at its own budget, the uniform sampler on the same schedule
+    with the recipe's network and label settings, deployed as the benchmark deploys the recipe, paired tests
+    against the shipped method."""
+    from seagul_envs import make_task
+    from seagul_learn.experiment import SHIPPED_METHOD, reference_method, versus_key
+    from seagul_learn.experiment.methods import SHARED_RECIPE_FIELDS, flat_settings, shipped_recipe
+
+    config = ExperimentConfig(task="acrobot", preset="smoke", methods=("shipped", "uniform"))
+    config.validate()
+    preset = config.resolve()
+    recipe = flat_settings(shipped_recipe("acrobot"))
+    assert preset.methods == (SHIPPED_METHOD, "uniform") and preset.budgets == (recipe["budget"],) == (1000,)
+    assert (preset.budget, preset.solves_per_round, preset.train_steps_per_round) == (1000, 50, 1000)
+    experiment = Experiment(config, tmp_path)
+    shipped = flat_settings(experiment.train_config("shipped", 1))
+    expected = flat_settings(shipped_recipe("acrobot", seed=1, snapshots=(1000,), progress=False))
+    assert {k: v for k, v in shipped.items() if k != "task"} == {k: v for k, v in expected.items() if k != "task"}
+    uniform = flat_settings(experiment.train_config("uniform", 1))
+    assert uniform["sampler"] == "uniform" and uniform["seed"] == 1
+    for name in (*SHARED_RECIPE_FIELDS, "budget", "solves_per_round", "train_steps_per_round"):
+        assert uniform[name] == recipe[name], name
+    assert list(uniform["snapshots"]) == [1000]
+    task = make_task("acrobot")
+    options = dict(experiment.deployment())
+    assert options["trust_region"] == task.profile.mpc_trust_region
+    assert options["horizon"] == task.profile.default_horizon(task) and "solver" not in options
+    assert reference_method(preset.methods) == "shipped" and versus_key("shipped") == "vs_shipped"
+    # The paper's presets keep their schedule and the experiment's own deployment.
+    paper = Experiment(ExperimentConfig(task="acrobot", preset="smoke"), tmp_path / "smoke")
+    assert dict(paper.deployment()) == {"horizon": 3, "solver": "ipopt", "trust_region": "lqr"}
+
+
+def test_the_shipped_method_trains_what_the_benchmark_ships(tmp_path: Path) -> None:
+    """One table of methods: ``seagul reproduce --methods shipped`` and the closed-loop benchmark's shipped method
+    (``seagul_learn.experiment.benchmark``, behind ``benchmarks/bench_closed_loop.py``) train the same settings."""
+    from seagul_learn.experiment import METHODS, benchmark
+    from seagul_learn.experiment.methods import SHIPPED, flat_settings, train_config
+
+    assert benchmark.METHODS is METHODS
+    bench = benchmark.BenchConfig.for_task("acrobot", quick=False)
+    budget = max(bench.budgets)
+    shipped = {**benchmark.method_config(bench, SHIPPED), "budget": budget, "seed": 2, "snapshots": (budget,)}
+    ours = Experiment(ExperimentConfig(task="acrobot", preset="smoke", methods=("shipped", "uniform")), tmp_path)
+    ours_settings = flat_settings(ours.train_config("shipped", 2))
+    theirs = flat_settings(train_config(**shipped, progress=False))
+    assert {k: v for k, v in ours_settings.items() if k != "task"} == {k: v for k, v in theirs.items() if k != "task"}
+
+
+def test_methods_override_the_presets_and_are_checked() -> None:
+    quick = ExperimentConfig(task="acrobot", preset="quick", methods=("uniform", "closed-loop")).resolve()
+    assert quick.methods == ("uniform", "closed-loop") and quick.budget == 60  # the preset's schedule
+    assert quick.train_overrides and all(k.startswith("closed-loop:") for k, _ in quick.train_overrides)
+    plain = ExperimentConfig(task="acrobot", preset="quick", methods=("uniform", "adversarial")).resolve()
+    assert plain.train_overrides == ()  # the closed-loop method's overrides went with it
+    with pytest.raises(ValueError, match="'uniform' baseline"):
+        ExperimentConfig(preset="smoke", methods=("shipped",)).validate()
+    with pytest.raises(ValueError, match="distinct names"):
+        ExperimentConfig(preset="smoke", methods=("uniform", "nope")).validate()
+    with pytest.raises(SystemExit):
+        main(["reproduce", "acrobot", "--methods", "uniform,nope"])
+    assert ExperimentConfig(methods="shipped,uniform").methods == ("shipped", "uniform")  # as stored or typed
+
+
+_TINY_BOOK = """
+recipes:
+  default:
+    budget: 4
+    sampler: {name: closed-loop, episodes: 1, jit: false, uniform_solves: 2, tail_stride: 5}
+    schedule: {solves_per_round: 2, train_steps_per_round: 20}
+    loss: {sobolev_weight: 1.0, value_cap: 50.0}
+  shipped:
+    extends: default
+    runtime: {snapshots: [4], progress: false}
+presets:
+  smoke:
+    seeds: 2
+    budget: 4
+    solves_per_round: 2
+    train_steps_per_round: 20
+    grid_points: 2
+    reference_grid_points: 1
+    budgets: [2, 4]
+    query_samples: 2
+    query_tail_stride: 10
+"""
+
+
+def test_reproduce_runs_the_shipped_recipe_through_the_same_pipeline(tmp_path: Path, monkeypatch) -> None:
+    """``seagul reproduce acrobot --methods shipped,uniform`` with a recipe file of 4-solve recipes (registered for
+    the acrobot): the shipped recipe trains, is evaluated and compared beside the uniform sampler on its schedule."""
+    from seagul_learn import recipes
+
+    book = tmp_path / "acrobot.yml"
+    book.write_text(_TINY_BOOK)
+    monkeypatch.setattr(recipes, "_REGISTERED", {})
+    recipes.register("acrobot", book)
+    out = tmp_path / "run"
+    argv = ["reproduce", "acrobot", "--preset", "smoke", "--methods", "shipped,uniform", "--out", str(out)]
+    assert main([*argv, "--workers", "1", "--no-progress"]) == 0
+    stored = json.loads((out / "train" / "shipped-seed1" / "config.json").read_text())
+    assert stored["budget"] == 4 and stored["sampler"]["name"] == "closed-loop" and stored["seed"] == 1
+    uniform = json.loads((out / "train" / "uniform-seed1" / "config.json").read_text())
+    assert uniform["sampler"]["name"] == "uniform" and uniform["schedule"] == stored["schedule"]
+    summary = json.loads((out / "closed_loop" / "summary.json").read_text())
+    assert set(summary["methods"]) == {"shipped", "uniform"} and summary["reference_method"] == "shipped"
+    assert summary["budgets"] == [4] and summary["methods"]["uniform"]["vs_shipped"]["seeds"] == 2
+    text = (out / "report.md").read_text()
+    assert "comparison with the shipped recipe (4 solves per network, 2 seeds)" in text
+    assert "| shipped-recipe MPC |" in text and "Paired tests against the shipped-recipe method" in text

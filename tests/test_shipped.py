@@ -101,3 +101,33 @@ def test_the_animation_starts_from_the_hard_corner_of_x0() -> None:
     from seagul_learn.report import hard_start
 
     np.testing.assert_allclose(hard_start("acrobot"), [np.pi - 0.3, -0.3, 0.0, 0.0])
+
+
+def test_the_benchmarks_block_is_what_the_shipped_controller_reads(tmp_path: Path, monkeypatch) -> None:
+    """The block the closed-loop benchmark writes (``seagul_learn.experiment.benchmark.shipped_block``, with the keys
+    ``run_task`` adds) carries every deployment and measured key :func:`shipped_network` reads, and deploys the
+    network as the benchmark ran it."""
+    from seagul_learn.experiment.benchmark import BenchConfig, shipped_block
+
+    bench = BenchConfig.for_task("acrobot", quick=False)
+    rows = [
+        {"seed": s, "success_rate": r, "heldout_success_rate": r, "query_error": {"median": 1.0, "p95": 2.0}}
+        for s, r in enumerate([0.5, 0.9, 0.7])
+    ]
+    network = shipped_network("acrobot").network
+    timing = {"median_ms": 5.0, "p95_ms": 30.0, "steps": 10, "success_rate": 0.7}
+    block = shipped_block(bench, rows, {"success_rate": 1.0, "heldout_success_rate": 0.9}, network, timing, 1000)
+    added = {"network_seed", "budgets", "methods", "train_settings", "wall_s", "aggregated_from"}
+    assert set(_acrobot_block()) - set(block) <= added  # the committed block's other keys come from run_task
+    assert set(shipped_mod.DEPLOYMENT_KEYS) | set(shipped_mod.MEASURED_KEYS) <= set(block)
+    assert block["network"] == _acrobot_block()["network"]  # relative to the repository
+    monkeypatch.setattr(shipped_mod, "SHIPPED_RESULTS", _results(tmp_path, {"acrobot": block}))
+    controller = shipped_network("acrobot")
+    assert controller is not None and controller.network == network
+    assert (controller.horizon, controller.trust_region, controller.goal_blend, controller.jit) == (
+        bench.horizon,
+        bench.trust_region,
+        bench.goal_blend,
+        bench.jit,
+    )
+    assert controller.measured["success_rate"] == 0.7 and controller.measured["seeds"] == 3

@@ -1,7 +1,9 @@
 """``seagul reproduce``: the paper's experiment for one task end to end: the task's shipped controller in closed loop
 beside LQR and the full-horizon MPC, then uniform, adversarial (SEAGuL) and closed-loop value-function learning at
 an equal budget over paired seeds, closed-loop MPC statistics for every seed, and a report (see
-:mod:`seagul_learn.experiment`).
+:mod:`seagul_learn.experiment`). ``--methods`` names other methods of the same pipeline, the task's own recipe
+included: ``seagul reproduce acrobot --methods shipped,uniform`` trains the shipped recipe (at its own budget) beside
+the uniform sampler on the same schedule.
 
 The options are one per :class:`~seagul_learn.experiment.ExperimentConfig` field (see
 :mod:`seagul_learn.commands._config`; ``--ppo`` is an alias of ``--ppo-model``, itself a deprecated spelling of
@@ -47,10 +49,25 @@ def _one_model(value: str) -> tuple[str, ...]:
     return (value,)
 
 
+def _method_list(names: tuple[str, ...]) -> Any:
+    """``--methods A,B``: distinct known method names (an argument error names the unknown ones)."""
+
+    def parse(value: str) -> tuple[str, ...]:
+        methods = tuple(m.strip() for m in value.split(",") if m.strip())
+        unknown = [m for m in methods if m not in names]
+        if unknown or not methods:
+            raise argparse.ArgumentTypeError(f"unknown methods {unknown or [value]}; choose from {', '.join(names)}")
+        if len(set(methods)) != len(methods):
+            raise argparse.ArgumentTypeError(f"a method is named twice: {value}")
+        return methods
+
+    return parse
+
+
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare the ``reproduce`` arguments: one per :class:`~seagul_learn.experiment.ExperimentConfig` field, then
     ``--out``/``--resume``."""
-    from seagul_learn.experiment import SB3_ALGOS, ExperimentConfig
+    from seagul_learn.experiment import METHOD_NAMES, SB3_ALGOS, ExperimentConfig
 
     add_dataclass_arguments(
         parser,
@@ -66,6 +83,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                 choices=("quick", "paper", "smoke"), help="experiment size (smoke only checks the pipeline)"
             ),
             "seeds": Option(type=positive_int),
+            "methods": Option(type=_method_list(METHOD_NAMES), metavar="A,B,..."),
             "workers": Option(type=positive_int, default=2),
             "backend": Option(choices=("local", "ray")),
             "ppo_model": Option(aliases=("--ppo",), metavar="MODEL"),
@@ -117,7 +135,8 @@ def run(args: argparse.Namespace) -> int:
 COMMAND = Command(
     name="reproduce",
     help="run the paper's experiment for a task (the shipped controller, then uniform vs SEAGuL vs closed-loop "
-    "learning at an equal budget with per-seed MPC evaluation) and write a report",
+    "learning, or the --methods named, e.g. the shipped recipe, at an equal budget with per-seed MPC evaluation) and "
+    "write a report",
     add_arguments=add_arguments,
     run=run,
 )
