@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from seagul_learn.training import TrainConfig, TrainResult, train
 
@@ -37,6 +38,10 @@ def _train(tmp_path: Path, workers: int) -> TrainResult:
     return train(config, tmp_path / f"workers{workers}")
 
 
+# A minute on a cold solver cache (the acrobot's compiled solvers, three training rounds twice). Covered in the default
+# suite by tests/test_training.py (a run with workers=2 equals the run with 1, on the toy solver) and
+# tests/test_conformance.py (solve_many bit-identical for 1 and 2 workers on the real optimizer, every task).
+@pytest.mark.slow
 def test_training_is_identical_for_one_and_two_workers(tmp_path: Path) -> None:
     one, two = _train(tmp_path, 1), _train(tmp_path, 2)
     recs_one, recs_two = one.dataset.records(), two.dataset.records()
