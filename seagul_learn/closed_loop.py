@@ -348,21 +348,24 @@ class ClosedLoopSampler:
     def collector(self, network: ValueModel) -> Any:
         """The MPC that collects this round's queries (built once per guard, then only re-parameterised)."""
         from seagul_control.evaluation import default_horizon
-        from seagul_control.mpc import LimitedLookaheadMPC
+        from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
 
         guard = "lqr" if self.loop_rounds < self.options.warmup_rounds else self.deployed_guard
         horizon = self.options.horizon or default_horizon(self.task)
         mpc = self._mpcs.get(guard)
         if mpc is None:
             extra = {"ipopt.max_wall_time": self.options.max_step_time} if self.options.solver == "ipopt" else {}
+            options = MPCOptions(
+                jit=self.options.jit,
+                solver=self.options.solver,  # type: ignore[arg-type]
+                solver_options=extra,
+            )
             mpc = LimitedLookaheadMPC(
                 self.task,
                 network,
                 horizon,
+                options,
                 trust_region=guard,  # type: ignore[arg-type]
-                jit=self.options.jit,
-                solver=self.options.solver,
-                solver_options=extra,
                 # Over robots: the deployed robust MPC, planning (and querying the value) for its estimate.
                 model_params=self.robots,
                 estimate_robot=self.robots,
@@ -608,7 +611,7 @@ def select_members(
     import itertools
 
     from seagul_control.evaluation import default_horizon, run_policy_episode
-    from seagul_control.mpc import LimitedLookaheadMPC
+    from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
 
     k = len(candidates.members)
     if not 2 <= int(size) <= k:
@@ -633,8 +636,8 @@ def select_members(
                 task,
                 ensemble,
                 horizon or default_horizon(task),
+                MPCOptions(jit=jit),
                 trust_region=trust_region,
-                jit=jit,
             )
         else:
             mpc.set_value_function(ensemble)

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from toy_problem import ToySolver
 
-from seagul_control.mpc import LimitedLookaheadMPC
+from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
 from seagul_envs import make_task
 from seagul_learn.closed_loop import ClosedLoopOptions, collect_queries, farthest_first, snap_tau
 from seagul_learn.solving import tail_horizon
@@ -83,7 +83,7 @@ def _net(task, seed=0):
 def test_collect_queries_are_the_planned_terminal_states():
     task = make_task("acrobot")
     net = _net(task)
-    mpc = LimitedLookaheadMPC(task, net, 3, trust_region="none", jit=False)
+    mpc = LimitedLookaheadMPC(task, net, 3, MPCOptions(jit=False), trust_region="none")
     starts = task.sample_x0(np.random.default_rng(1), 1)
     q = collect_queries(task, mpc, starts)
     assert q.episodes == 1 and q.steps == 50
@@ -321,7 +321,7 @@ def test_visited_fraction_solves_tails_from_the_states_the_episodes_visited(tmp_
 
 def test_collect_queries_records_the_visited_states_in_order():
     task = make_task("acrobot")
-    mpc = LimitedLookaheadMPC(task, _net(task), 2, trust_region="none", jit=False)
+    mpc = LimitedLookaheadMPC(task, _net(task), 2, MPCOptions(jit=False), trust_region="none")
     starts = task.sample_x0(np.random.default_rng(3), 1)
     q = collect_queries(task, mpc, starts, record_visited=True)
     assert q.visited_x is not None and q.visited_tau is not None and q.visited_failed is not None

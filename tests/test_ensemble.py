@@ -7,7 +7,7 @@ import pytest
 import torch
 from toy_problem import ToySolver
 
-from seagul_control.mpc import LimitedLookaheadMPC
+from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
 from seagul_envs import make_task
 from seagul_learn.training import NetworkConfig, RuntimeConfig, ScheduleConfig, TrainConfig, train
 from seagul_learn.value_network import ValueEnsemble, ValueNetwork, ValueNetworkFileError
@@ -70,9 +70,8 @@ def test_bad_arguments_are_named():
 def test_the_mpc_uses_the_pessimistic_value_and_swaps_weights_without_rebuild():
     task = make_task("acrobot")
     ens, _, _ = _ensemble(pessimism=0.0)
-    mpc = LimitedLookaheadMPC(
-        task, ens, 2, trust_region="none", clamp=False, anchor_goal=False, goal_blend=0.0, jit=False
-    )
+    options = MPCOptions(clamp=False, anchor_goal=False, goal_blend=0.0, jit=False)
+    mpc = LimitedLookaheadMPC(task, ens, 2, options, trust_region="none")
     x = task.goal + np.array([0.1, -0.1, 0.0, 0.0])
     mean = mpc.terminal_cost_value(x, 3.0)
     assert mean == pytest.approx(float(ens.predict(x, 3.0)[0]))
