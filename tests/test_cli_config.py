@@ -20,7 +20,7 @@ from seagul_learn.commands._config import (
     field_docstrings,
     plain_text,
 )
-from seagul_learn.commands.train import config_flags
+from seagul_learn.commands.train import SAMPLER_WORDS, config_flags
 from seagul_learn.experiment import ExperimentConfig
 from seagul_learn.training import (
     AdversarialOptions,
@@ -439,3 +439,13 @@ def test_a_new_field_needs_no_cli_edit():
     assert config.depth == 5 and config.count == 1
     assert _actions_by_dest(parser)["depth"].help == "Layers. (default: 2)"
     assert _actions_by_dest(parser)["count"].help.startswith("How many")  # inherited docstrings
+
+
+def test_every_train_flag_help_prints_is_documented(capsys):
+    """The other direction: each flag tyro derives (top level and every sampler's) is in the reference page."""
+    page = (ROOT / "docs" / "reference" / "cli.md").read_text()
+    helps = [_help(capsys, "--task", "acrobot")] + [_help(capsys, word) for word in SAMPLER_WORDS]
+    flags = {f for text in helps for f in re.findall(r"(?<![\w-])--[a-z][a-z0-9.-]*[a-z0-9]", text)}
+    assert {"--sampler.episodes", "--network.hidden", "--runtime.no-progress"} <= flags
+    missing = sorted(f for f in flags if f"`{f}" not in page and f != "--help")
+    assert missing == [], f"seagul train flags missing from docs/reference/cli.md: {missing}"
