@@ -10,6 +10,8 @@ loaded from the file and shrunk to a 1 s problem (``test_custom_system.make_smal
 
 * ``validate_task`` accepts it; its goal, start box X0, time range and sampled starts are consistent, the dynamics
   are finite at a start and the terminal cost is 0 at the goal;
+* ``pickle`` and ``cloudpickle`` copies (what workers and Ray actors receive) have the same fields, functions,
+  simulator and fingerprint;
 * the CasADi derivatives of the dynamics ``f(x, u)``, the stage cost ``l(x, u)`` and the terminal cost ``l_f(x)``
   (what the NLP solvers and the value labels ``grad_x`` are built on) equal central finite differences at starts
   drawn from X0 and inputs drawn from the input box;
@@ -42,6 +44,7 @@ from __future__ import annotations
 import ast
 import dataclasses
 import math
+import pickle
 import re
 import sys
 import warnings
@@ -50,6 +53,7 @@ from dataclasses import dataclass
 from typing import Any
 
 import casadi as ca
+import cloudpickle
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -422,6 +426,33 @@ def test_the_task_is_valid_and_its_sets_are_consistent(task: Task) -> None:
     xdot = np.asarray(task.dynamics(x, np.zeros(task.nu))).ravel()
     assert xdot.shape == (task.nx,) and np.all(np.isfinite(xdot))
     assert task.terminal_cost_value(task.goal) == pytest.approx(0.0)
+
+
+@pytest.mark.parametrize("dumps", [pickle.dumps, cloudpickle.dumps], ids=["pickle", "cloudpickle"])
+def test_the_task_pickles_to_an_equivalent_task(task: Task, dumps: Callable[[Any], bytes]) -> None:
+    """What the local workers and the Ray actors receive: the same fields, functions and fingerprint."""
+    copy = pickle.loads(dumps(task))
+    assert isinstance(copy, Task) and copy is not task
+    assert (copy.name, copy.state_names, copy.control_names, copy.params) == (
+        task.name,
+        task.state_names,
+        task.control_names,
+        task.params,
+    )
+    for f in dataclasses.fields(Task):
+        value = getattr(task, f.name)
+        if isinstance(value, np.ndarray):
+            np.testing.assert_array_equal(getattr(copy, f.name), value)
+    rng = np.random.default_rng(8)
+    x = rng.uniform(task.x0_low, task.x0_high)
+    u = rng.uniform(task.u_low, task.u_high)
+    np.testing.assert_array_equal(np.asarray(copy.dynamics(x, u)), np.asarray(task.dynamics(x, u)))
+    assert copy.stage_cost_value(x, u) == task.stage_cost_value(x, u)
+    assert copy.terminal_cost_value(x) == task.terminal_cost_value(x)
+    dt = task.control_period
+    np.testing.assert_array_equal(np.asarray(copy.simulator(dt)(x, u)), np.asarray(task.simulator(dt)(x, u)))
+    assert validate_task(copy) is copy
+    assert copy.fingerprint() == task.fingerprint()
 
 
 def _points(task: Task, n: int, seed: int) -> list[tuple[np.ndarray, np.ndarray]]:

@@ -21,7 +21,6 @@ from gymnasium.utils.env_checker import check_env
 import seagul_envs
 from seagul_envs import Task, TaskEnv, make_env, make_task, register_task, unregister_task
 from seagul_envs.tasks.acrobot import make_acrobot_task
-from seagul_envs.tasks.glider import make_glider_task
 
 
 # ---------------------------------------------------------------------------------------------------- the custom task
@@ -321,32 +320,8 @@ def test_a_two_input_task_with_a_time_to_go_range() -> None:
         make_env(dataclasses.replace(task, name="double integrator"))
 
 
-# --------------------------------------------------------------------------------------------------- pickling a Task
-@pytest.mark.parametrize("factory", [make_pendulum_task, make_acrobot_task, make_glider_task])
-@pytest.mark.parametrize("dumps", [pickle.dumps, cloudpickle.dumps], ids=["pickle", "cloudpickle"])
-def test_task_pickles_to_an_equivalent_task(factory, dumps) -> None:
-    task = factory()
-    copy = pickle.loads(dumps(task))
-    assert isinstance(copy, Task) and copy is not task
-    assert (copy.name, copy.state_names, copy.control_names, copy.params) == (
-        task.name,
-        task.state_names,
-        task.control_names,
-        task.params,
-    )
-    for f in dataclasses.fields(Task):
-        value = getattr(task, f.name)
-        if isinstance(value, np.ndarray):
-            np.testing.assert_array_equal(getattr(copy, f.name), value)
-    rng = np.random.default_rng(8)
-    x = rng.uniform(task.x0_low, task.x0_high)
-    u = rng.uniform(task.u_low, task.u_high)
-    np.testing.assert_array_equal(np.asarray(copy.dynamics(x, u)), np.asarray(task.dynamics(x, u)))
-    assert copy.stage_cost_value(x, u) == task.stage_cost_value(x, u)
-    assert copy.terminal_cost_value(x) == task.terminal_cost_value(x)
-    dt = task.control_period
-    np.testing.assert_array_equal(np.asarray(copy.simulator(dt)(x, u)), np.asarray(task.simulator(dt)(x, u)))
-    assert seagul_envs.validate_task(copy) is copy
+# Pickling a Task (pickle and cloudpickle) to an equivalent task: the conformance battery's, on every task
+# (tests/test_conformance.py).
 
 
 # ------------------------------------------------------------------------------------------------------ register_task
