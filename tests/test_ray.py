@@ -141,7 +141,8 @@ def _assert_each_start_once(starts: np.ndarray, results: list[SolveResult]) -> N
         # One actor, guided chunks of 2, 2, 1, 1, 1, 1 starts: it dies after the first solve of its first chunk.
         (1, {0: 2}),
         # Two actors; each call hands each actor one chunk first, so both die on their first chunk of the call.
-        (2, {0: 1, 1: 1}),
+        # Two actor restarts cost ~45 s on a loaded 2-core machine: slow, the mid-chunk case covers the contract.
+        pytest.param(2, {0: 1, 1: 1}, marks=pytest.mark.slow),
     ],
     ids=["mid-chunk", "both-actors"],
 )
