@@ -88,9 +88,9 @@ def refit_and_select(
 ) -> ValueModel:
     """``refit.candidates``: refit that many members to the whole buffer (as :func:`refit`), save them as
     ``network_candidates.pt``, and return the ``refit.ensemble`` of them whose deployed MPC succeeds most often on
-    ``selection.episodes`` training starts (:func:`seagul_learn.closed_loop.select_members`; the scores go to
+    ``selection.episodes`` training starts (:func:`seagul_learn.member_selection.select_members`; the scores go to
     ``network_selection.json``). Deterministic (the refit, the starts and the MPC are)."""
-    from seagul_learn.closed_loop import select_members
+    from seagul_learn.member_selection import select_members
 
     # The candidates' refit is deterministic: a run interrupted during the selection reuses the stored one when it
     # was made with the same settings from the same buffer.
