@@ -1,4 +1,6 @@
-"""Command-line options derived from a config dataclass (CleanRL/tyro style, with plain :mod:`argparse`).
+"""Command-line options derived from a flat config dataclass with plain :mod:`argparse` (``seagul reproduce`` from
+``ExperimentConfig``, the SB3 baselines' script from ``SB3Config``). ``seagul train``, whose config is nested, derives
+its flags with tyro instead (:mod:`seagul_learn.commands.train`).
 
 :func:`add_dataclass_arguments` declares one option per field of a dataclass:
 
@@ -14,7 +16,7 @@
 A field added to the dataclass is therefore reachable from the command line without any edit here or in the
 command. Per-field :class:`Option` entries only refine what the dataclass cannot say: a validating ``type`` (e.g.
 :func:`~seagul_learn.commands._args.positive_int`, whose errors name the accepted range), ``choices``, extra
-spellings kept for compatibility (``aliases``, e.g. ``--sobolev`` for ``sobolev_weight``), a CLI-specific default,
+spellings kept for compatibility (``aliases``, e.g. ``--ppo`` for ``ppo_model``), a CLI-specific default,
 ``required``, a positional argument.
 """
 
