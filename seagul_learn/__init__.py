@@ -21,20 +21,34 @@ _LAZY: dict[str, str] = {
     "Dataset": "seagul_learn.dataset",
     "SolveRecord": "seagul_learn.dataset",
     "UniformSampler": "seagul_learn.samplers",
+    "UniformOptions": "seagul_learn.samplers",
     "AdversarialSampler": "seagul_learn.samplers",
     "AdversarialOptions": "seagul_learn.samplers",
     "TrainConfig": "seagul_learn.training",
+    "NetworkConfig": "seagul_learn.config_parts",
+    "ScheduleConfig": "seagul_learn.config_parts",
+    "LossConfig": "seagul_learn.config_parts",
+    "RefitConfig": "seagul_learn.config_parts",
+    "SelectionConfig": "seagul_learn.config_parts",
+    "RuntimeConfig": "seagul_learn.config_parts",
     "train": "seagul_learn.training",
     "PolicySpec": "seagul_learn.policies",
     "SB3Policy": "seagul_learn.policies",
     "build_policy": "seagul_learn.policies",
 }
 
+# Submodules served the same way: ``seagul_learn.recipes.recipe(task, name)`` without an import of its own.
+_LAZY_MODULES: dict[str, str] = {
+    "recipes": "seagul_learn.recipes",
+}
+
 
 def __getattr__(name: str) -> Any:
     if name in _LAZY:
         return getattr(importlib.import_module(_LAZY[name]), name)
+    if name in _LAZY_MODULES:
+        return importlib.import_module(_LAZY_MODULES[name])
     raise AttributeError(f"module 'seagul_learn' has no attribute {name!r}")
 
 
-__all__ = sorted(_LAZY)
+__all__ = sorted([*_LAZY, *_LAZY_MODULES])
