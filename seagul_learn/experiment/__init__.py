@@ -52,6 +52,7 @@ they are complete, and the shipped controller's evaluation is read back from ``s
 The package: :mod:`~seagul_learn.experiment.config` (:class:`ExperimentConfig`, :class:`Preset`),
 :mod:`~seagul_learn.experiment.methods` (the named methods), :mod:`~seagul_learn.experiment.pipeline` (the stages),
 :mod:`~seagul_learn.experiment.runs` (training runs of methods x seeds),
+:mod:`~seagul_learn.experiment.shipped_stage` (the shipped controller's stage),
 :mod:`~seagul_learn.experiment.statistics` (the paired test, per-method statistics),
 :mod:`~seagul_learn.experiment.figures` (success vs solves), :mod:`~seagul_learn.experiment.sections` (the report's
 text) and :mod:`~seagul_learn.experiment.benchmark` (the closed-loop benchmark's grid and held-out evaluation, behind

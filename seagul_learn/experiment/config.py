@@ -230,10 +230,6 @@ class ExperimentConfig:
     :func:`task_preset`)."""
     seeds: int | None = None
     """Override of the preset's number of paired seeds."""
-    methods: tuple[str, ...] = ()
-    """The learning methods compared, instead of the preset's (names of
-    :data:`~seagul_learn.experiment.methods.METHODS`, or ``shipped`` for the task's own recipe; ``uniform`` among
-    them), e.g. ``shipped,uniform``. With ``shipped`` every method takes the recipe's budget and schedule."""
     workers: int = 1
     """Parallel processes (training runs and closed-loop episodes; results do not depend on it)."""
     backend: str = "local"
@@ -257,6 +253,10 @@ class ExperimentConfig:
     same MPC (problem, solver, options) runs with CasADi interpreted: slower steps, which the report labels as
     such. Compiled, its first build on a cold cache is about 2 minutes of gcc per network architecture, a third of
     the quick preset's time."""
+    methods: tuple[str, ...] = ()
+    """The learning methods compared, instead of the preset's (names of
+    :data:`~seagul_learn.experiment.methods.METHODS`, or ``shipped`` for the task's own recipe; ``uniform`` among
+    them), e.g. ``shipped,uniform``. With ``shipped`` every method takes the recipe's budget and schedule."""
 
     def __post_init__(self) -> None:
         # experiment.json stores the tuple as a JSON list; a single path given as a string is one model.

@@ -27,7 +27,6 @@ from seagul_learn.comparison import METRICS, final_metric, paired_comparison, pl
 from seagul_learn.dataset import atomic_write_text
 from seagul_learn.experiment.config import (
     BASELINE_METHOD,
-    SHIPPED_LABEL,
     ExperimentConfig,
     _slug,
     method_label,
@@ -358,64 +357,9 @@ class Experiment:
         return result
 
     def _measure_shipped(self) -> dict[str, Any]:
-        from seagul_control.evaluation import PolicySpec, build_policy
-        from seagul_learn.report import controller_animation, hard_start, summarize
+        from seagul_learn.experiment.shipped_stage import measure_shipped
 
-        controller = shipped_network(self.task)
-        if controller is None:
-            return {"block": None, "task": self.task.name}
-        starts, grid = self.shipped_grid()
-        folder = self.out / "shipped" / "episodes"
-        spec = controller.spec(SHIPPED_LABEL, jit=self.config.shipped_jit)
-        lqr = PolicySpec("lqr", "LQR")
-        episodes = [r for policy in (spec, lqr) for r in self._episodes(policy, starts, False, folder=folder)]
-        paths_shown = self.task.profile.trajectory_plot is not None  # as the closed-loop evaluation stores them
-        _, reference_specs = self.baseline_specs()
-        full = [r for s in reference_specs for r in self._episodes(s, starts, paths_shown)]
-        rows = summarize(self.task, episodes + full)
-        by = {row["policy"]: row for row in rows}
-        ours, full_row = by[SHIPPED_LABEL], by[reference_specs[0].name]
-        x0 = hard_start(self.task)
-        policies = [(SHIPPED_LABEL, build_policy(self.task, spec)), ("LQR", build_policy(self.task, lqr))]
-        _, shown = controller_animation(self.task, policies, x0, self.out / "shipped" / "shipped_vs_lqr.gif")
-        n1, n2 = grid["shape"]
-        block = {
-            "network": controller.declared,
-            "horizon": controller.horizon,
-            "success_rate": float(ours["success_rate"]),
-            "full_horizon_success_rate": float(full_row["success_rate"]),
-            "median_ms": float(ours["median_step_ms"]),
-            "p95_ms": float(ours["p95_step_ms"]),
-            "lqr_success_rate": float(by["LQR"]["success_rate"]),
-            "full_horizon_median_ms": float(full_row["median_step_ms"]),
-            "full_horizon_p95_ms": float(full_row["p95_step_ms"]),
-            "trust_region": controller.trust_region,
-            "goal_blend": controller.goal_blend,
-            "jit": bool(self.config.shipped_jit),
-            "benchmark_jit": controller.jit,
-            "grid": f"{n1}x{n2}",
-            "starts": len(starts),
-            "network_file": str(controller.network),
-            "results": "shipped/shipped.json",
-            "animation": "shipped/shipped_vs_lqr.gif",
-            "benchmark": dict(controller.measured),
-            "benchmark_results": str(controller.source),
-        }
-        return {
-            "block": block,
-            "task": self.task.name,
-            "grid": grid,
-            "rows": rows,
-            "deployment": controller.describe(),
-            "animation": {
-                "path": block["animation"],
-                "start": [float(v) for v in x0],
-                "episodes": [
-                    {"policy": e.policy, "success": bool(e.success), "cost": float(e.cost), "steps": int(e.steps)}
-                    for e in shown
-                ],
-            },
-        }
+        return measure_shipped(self)
 
     # --------------------------------------------------------------------------------------------- closed loop
     def learned_policies(self) -> list[LearnedPolicy]:

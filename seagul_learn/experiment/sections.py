@@ -425,7 +425,15 @@ def experiment_sections(
                 f"backend `{config.backend}`, shipped MPC compiled: {config.shipped_jit}. Run "
                 f"directory: `{experiment.out}`. TrainConfig overrides of the "
                 "methods (`METHODS`; the preset's `train_overrides` below come on top): "
-                + "; ".join(f"`{m}`: {METHODS[m]}" for m in p.methods)
+                + "; ".join(
+                    f"`{m}`: "
+                    + (
+                        "the task's recipe, `TrainConfig.recipe(task, 'shipped')`"
+                        if m == SHIPPED_METHOD
+                        else f"{METHODS[m]}"
+                    )
+                    for m in p.methods
+                )
                 + "."
             ],
             [Table(["setting", "value"], [[k, v] for k, v in asdict(p).items()])],
