@@ -23,7 +23,7 @@ from hypothesis.extra import numpy as hnp
 
 import seagul_envs
 from seagul_control.lqr import LQRPolicy
-from seagul_control.mpc import FullHorizonMPC, LimitedLookaheadMPC
+from seagul_control.mpc import FullHorizonMPC, LimitedLookaheadMPC, MPCOptions
 from seagul_envs import ENV_IDS, make_task
 from seagul_learn.cli import main
 from seagul_learn.dataset import Dataset, DatasetError
@@ -278,7 +278,7 @@ def test_solve_many_rejects_bad_workers_backend_and_options() -> None:
 # ------------------------------------------------------------------------------------ MPC and LQR observations
 def _policies() -> list[Any]:
     task = make_task("acrobot")
-    return [LQRPolicy(task), LimitedLookaheadMPC(task, None, 5, jit=False)]
+    return [LQRPolicy(task), LimitedLookaheadMPC(task, None, 5, MPCOptions(jit=False))]
 
 
 def test_policy_observations_are_checked() -> None:
@@ -300,7 +300,7 @@ def test_mpc_horizon_must_be_at_least_one() -> None:
     task = make_task("acrobot")
     for horizon in (0, -3, 2.5):
         with pytest.raises(ValueError, match=rf"horizon must be an integer >= 1 step, got {horizon}"):
-            LimitedLookaheadMPC(task, None, horizon, jit=False)  # type: ignore[arg-type]
+            LimitedLookaheadMPC(task, None, horizon, MPCOptions(jit=False))  # type: ignore[arg-type]
     with pytest.raises(ValueError, match=r"FullHorizonMPC: horizon must be >= 1, got 0"):
         FullHorizonMPC(task, horizon=0)
 
@@ -311,16 +311,16 @@ def test_mpc_horizon_must_be_at_least_one() -> None:
     [
         ("budget", 0, "budget must be >= 1, got 0"),
         ("budget", -5, "budget must be >= 1, got -5"),
-        ("solves_per_round", 0, "solves_per_round must be >= 1, got 0"),
-        ("pretrain_solves", 0, "pretrain_solves must be >= 1, got 0"),
-        ("batch_size", 0, "batch_size must be >= 1, got 0"),
-        ("workers", 0, "workers must be >= 1, got 0"),
-        ("train_steps_per_round", -1, "train_steps_per_round must be >= 0, got -1"),
-        ("newest_fraction", 1.5, r"newest_fraction must be in \[0, 1\], got 1.5"),
-        ("lr", math.nan, "lr must be a positive number, got nan"),
-        ("sobolev_weight", math.inf, "sobolev_weight must be >= 0, got inf"),
-        ("adv_max_steps", 0, "max_steps must be >= 1, got 0"),
-        ("hidden", (0,), r"hidden must be positive layer widths, got \(0,\)"),
+        ("schedule.solves_per_round", 0, r"schedule\.solves_per_round must be >= 1, got 0"),
+        ("schedule.pretrain_solves", 0, r"schedule\.pretrain_solves must be >= 1, got 0"),
+        ("schedule.batch_size", 0, r"schedule\.batch_size must be >= 1, got 0"),
+        ("runtime.workers", 0, r"runtime\.workers must be >= 1, got 0"),
+        ("schedule.train_steps_per_round", -1, r"schedule\.train_steps_per_round must be >= 0, got -1"),
+        ("schedule.newest_fraction", 1.5, r"schedule\.newest_fraction must be in \[0, 1\], got 1.5"),
+        ("schedule.lr", math.nan, r"schedule\.lr must be a positive number, got nan"),
+        ("loss.sobolev_weight", math.inf, r"loss\.sobolev_weight must be >= 0, got inf"),
+        ("sampler.max_steps", 0, r"sampler: max_steps must be >= 1, got 0"),
+        ("network.hidden", (0,), r"network\.hidden must be positive layer widths, got \(0,\)"),
         ("task", "pendulum", r"unknown task 'pendulum'; available tasks: \['acrobot', 'glider'\]"),
     ],
 )
@@ -408,25 +408,33 @@ def _cli_error(argv: list[str], capsys: pytest.CaptureFixture[str]) -> str:
     return capsys.readouterr().err
 
 
+def _one_line(text: str) -> str:
+    """An error message as one line: the frame and wrapping of tyro's error box removed."""
+    return " ".join(text.replace("\u2502", " ").split())
+
+
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
         (["--task", "nope"], "argument --task: unknown task 'nope'; available tasks: acrobot, glider"),
-        (["--budget", "0"], "argument --budget: must be >= 1, got 0"),
-        (["--budget", "1.5"], "argument --budget: expected an integer >= 1, got '1.5'"),
-        (["--workers", "0"], "argument --workers: must be >= 1, got 0"),
-        (["--solves-per-round", "-2"], "argument --solves-per-round: must be >= 1, got -2"),
-        (["--pretrain-solves", "0"], "argument --pretrain-solves: must be >= 1, got 0"),
-        (["--train-steps-per-round", "-1"], "argument --train-steps-per-round: must be >= 0, got -1"),
-        (["--lr", "0"], "argument --lr: must be > 0, got 0"),
-        (["--lr", "nan"], "argument --lr: must be a finite number >= 0, got nan"),
-        (["--newest-fraction", "2"], r"argument --newest-fraction: must be in [0, 1], got 2"),
+        (["--budget", "0"], "budget must be >= 1, got 0"),
+        (["--budget", "1.5"], "Error parsing --budget: invalid literal for int() with base 10: '1.5'"),
+        (["--runtime.workers", "0"], "runtime.workers must be >= 1, got 0"),
+        (["--schedule.solves-per-round", "-2"], "schedule.solves_per_round must be >= 1, got -2"),
+        (["--schedule.pretrain-solves", "0"], "schedule.pretrain_solves must be >= 1, got 0"),
+        (["--schedule.train-steps-per-round", "-1"], "schedule.train_steps_per_round must be >= 0, got -1"),
+        (["--schedule.lr", "0"], "schedule.lr must be a positive number, got 0.0"),
+        (["--schedule.lr", "nan"], "schedule.lr must be a positive number, got nan"),
+        (["--schedule.newest-fraction", "2"], "schedule.newest_fraction must be in [0, 1], got 2.0"),
         (["--solver-options", "{bad"], "argument --solver-options: not valid JSON"),
+        # a flat flag of earlier versions: read as its nested spelling, with a note, and checked the same way
+        (["--solves-per-round", "-2"], "--solves-per-round -2 -> --schedule.solves-per-round -2"),
+        (["--solves-per-round", "-2"], "schedule.solves_per_round must be >= 1, got -2"),
     ],
 )
 def test_cli_train_arguments(extra: list[str], message: str, capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["train", "--task", "acrobot", "--out", "unused", *extra]
-    assert message in _cli_error(argv, capsys)
+    assert message in _one_line(_cli_error(argv, capsys))
 
 
 def test_cli_missing_required_arguments(capsys: pytest.CaptureFixture[str]) -> None:
