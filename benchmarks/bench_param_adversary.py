@@ -68,6 +68,7 @@ from benchmarks.bench_closed_loop import FULL_TRAIN as CLOSED_LOOP_TRAIN  # noqa
 from benchmarks.bench_closed_loop import _train_one, paired_test  # noqa: E402
 from seagul_control.evaluation import PolicySpec, default_horizon, evaluate, heldout_starts  # noqa: E402
 from seagul_envs import make_task  # noqa: E402
+from seagul_learn.config_legacy import LEGACY_NAMES, flat_name, new_name  # noqa: E402
 from seagul_learn.dataset import training_arrays  # noqa: E402
 from seagul_learn.report import Section, Table, write_report  # noqa: E402
 from seagul_learn.solving import solver_key, trajopt_batch_solver  # noqa: E402
@@ -87,13 +88,16 @@ METHODS: dict[str, dict[str, Any]] = {
 #: Its labels are handled as bench_closed_loop's recipe handles closed-loop tails (``FULL_TRAIN``: labels capped at
 #: 50, extreme gradient labels dropped, the standardisation following the buffer, a fresh 20 k-step refit at the end);
 #: without them one seed's tails (values up to ~1e4) gave validation errors 50-2,000x the uniform network's.
+#: Settings are TrainConfig fields by their dotted place (``"sampler.episodes"``; ``seagul_learn.config_legacy``
+#: maps the flat names of earlier versions, which the committed result's ``train_settings`` keep).
+_CLOSED_LOOP_TRAIN = {new_name(k) if k in LEGACY_NAMES else k: v for k, v in CLOSED_LOOP_TRAIN.items()}
 CLOSED_LOOP: dict[str, Any] = {
     "sampler": "closed-loop",
     "model_params": True,
-    "cl_episodes": 5,
-    "cl_warmup_rounds": 1,
-    "cl_trust_region": "lqr",
-    **{k: CLOSED_LOOP_TRAIN[k] for k in ("value_cap", "grad_label_max", "renormalize", "refit_steps")},
+    "sampler.episodes": 5,
+    "sampler.warmup_rounds": 1,
+    "sampler.trust_region": "lqr",
+    **{k: _CLOSED_LOOP_TRAIN[k] for k in ("loss.value_cap", "loss.grad_label_max", "loss.renormalize", "refit.steps")},
 }
 ROBOT_SEED = 20261202
 """Seed of the robots the closed-loop starts are simulated on (the same for every method, seed and run)."""
@@ -126,19 +130,19 @@ class ParamBenchConfig:
     their iteration limits; a pilot of 20 such episodes measured 10 % success, docs/reference/spec.md §14.4)."""
     train: dict[str, Any] = field(
         default_factory=lambda: {
-            "hidden": (64, 64),
-            "solves_per_round": 10,
-            "train_steps_per_round": 500,
-            "sobolev_weight": 1.0,
-            "pretrain_solves": 10,
-            "adv_max_steps": 5,
+            "network.hidden": (64, 64),
+            "schedule.solves_per_round": 10,
+            "schedule.train_steps_per_round": 500,
+            "loss.sobolev_weight": 1.0,
+            "schedule.pretrain_solves": 10,
+            "sampler.max_steps": 5,
         }
     )
 
     def methods(self) -> dict[str, dict[str, Any]]:
         """The trained methods and their TrainConfig settings."""
         # A third of the budget uniform (100 of the default 300 solves), then closed-loop rounds.
-        settings = {**CLOSED_LOOP, "cl_uniform_solves": self.budget // 3, "cl_jit": self.jit}
+        settings = {**CLOSED_LOOP, "sampler.uniform_solves": self.budget // 3, "sampler.jit": self.jit}
         extra = {"closed-loop": settings} if self.closed_loop else {}
         return {**METHODS, **extra}
 
@@ -153,12 +157,12 @@ class ParamBenchConfig:
                 fd_points=1,
                 jit=False,
                 train={
-                    "hidden": (16,),
-                    "solves_per_round": 10,
-                    "train_steps_per_round": 50,
-                    "sobolev_weight": 1.0,
-                    "pretrain_solves": 4,
-                    "adv_max_steps": 3,
+                    "network.hidden": (16,),
+                    "schedule.solves_per_round": 10,
+                    "schedule.train_steps_per_round": 50,
+                    "loss.sobolev_weight": 1.0,
+                    "schedule.pretrain_solves": 4,
+                    "sampler.max_steps": 3,
                 },
             )
         return cls(task=task)
@@ -170,7 +174,7 @@ def train_all(bench: ParamBenchConfig, out: Path, workers: int) -> dict[tuple[st
     for seed in range(bench.seeds):
         for method, settings in bench.methods().items():
             cfg = {"task": bench.task, **bench.train, **settings, "budget": bench.budget, "seed": seed}
-            jobs[(method, seed)] = ({**cfg, "progress": False}, str(out / "train" / f"{method}-seed{seed}"))
+            jobs[(method, seed)] = ({**cfg, "runtime.progress": False}, str(out / "train" / f"{method}-seed{seed}"))
     Parallel(n_jobs=workers)(delayed(_train_one)(*job) for job in jobs.values())
     return {k: Path(v[1]) for k, v in jobs.items()}
 
@@ -183,7 +187,7 @@ def robust_validation(task_name: str, run: Path) -> dict[str, float]:
         task,
         trajopt_batch_solver(task, solver_options=config.solver_options),
         solver_key(config.solver_options, task),
-        config.cache_dir or default_cache_dir(),
+        config.runtime.cache_dir or default_cache_dir(),
         model_params=True,
     )
     arrays = training_arrays(records, task.nx)
@@ -338,7 +342,7 @@ def run_task(bench: ParamBenchConfig, out: Path, workers: int) -> dict[str, Any]
             "nominal": "LimitedLookaheadMPC(task, net, horizon, trust_region)",
             "options": dict(mpc_options(bench, estimating=True)),
         },
-        "train_settings": {k: (list(v) if isinstance(v, tuple) else v) for k, v in bench.train.items()},
+        "train_settings": {flat_name(k): (list(v) if isinstance(v, tuple) else v) for k, v in bench.train.items()},
         "robot_seed": ROBOT_SEED,
         "train_wall_s": round(train_s, 1),
     }

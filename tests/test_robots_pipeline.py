@@ -15,6 +15,7 @@ import torch
 from toy_problem import ToyRobotSolver, ToySolver
 
 from seagul_control import LimitedLookaheadMPC
+from seagul_control.mpc import MPCOptions
 from seagul_envs import make_task
 from seagul_learn.closed_loop import collect_queries
 from seagul_learn.dataset import Dataset, DatasetError, SolveRecord, training_arrays
@@ -170,22 +171,24 @@ def test_the_adversarial_ascent_moves_theta_uphill_inside_theta():
 
 
 def _robot_config(tmp_path, **overrides) -> TrainConfig:
-    base = dict(
-        task="acrobot",
-        sampler="adversarial",
-        budget=12,
-        solves_per_round=6,
-        train_steps_per_round=10,
-        batch_size=32,
-        pretrain_solves=4,
-        pretrain_steps=10,
-        adv_max_steps=3,
-        sobolev_weight=1.0,
-        model_params=True,
-        seed=0,
-        cache_dir=str(tmp_path / "cache"),
-        progress=False,
-    )
+    """A small run over robots; ``overrides`` name fields, or fields of a part as ``"part.field"`` (a sampler field
+    the chosen sampler lacks is ignored, so the adversarial one's ``max_steps`` does not stop a closed-loop run)."""
+    base = {
+        "task": "acrobot",
+        "sampler": "adversarial",
+        "budget": 12,
+        "schedule.solves_per_round": 6,
+        "schedule.train_steps_per_round": 10,
+        "schedule.batch_size": 32,
+        "schedule.pretrain_solves": 4,
+        "schedule.pretrain_steps": 10,
+        "sampler.max_steps": 3,
+        "loss.sobolev_weight": 1.0,
+        "model_params": True,
+        "seed": 0,
+        "runtime.cache_dir": str(tmp_path / "cache"),
+        "runtime.progress": False,
+    }
     base.update(overrides)
     return TrainConfig(**base)
 
@@ -223,19 +226,19 @@ def test_uniform_and_adversarial_runs_over_robots_share_the_seeds_pretraining_an
 
 
 def _cl_robot_config(tmp_path, **overrides) -> TrainConfig:
-    base = dict(
-        sampler="closed-loop",
-        budget=12,
-        hidden=(8,),
-        cl_episodes=2,
-        cl_horizon=2,
-        cl_jit=False,
-        cl_uniform_fraction=0.34,
-        cl_uniform_solves=0,
-        cl_warmup_rounds=0,
-        cl_trust_region="none",
-        validate=False,
-    )
+    base = {
+        "sampler": "closed-loop",
+        "budget": 12,
+        "network.hidden": (8,),
+        "sampler.episodes": 2,
+        "sampler.horizon": 2,
+        "sampler.jit": False,
+        "sampler.uniform_fraction": 0.34,
+        "sampler.uniform_solves": 0,
+        "sampler.warmup_rounds": 0,
+        "sampler.trust_region": "none",
+        "validate": False,
+    }
     base.update(overrides)
     return _robot_config(tmp_path, **base)
 
@@ -271,12 +274,16 @@ def test_collect_queries_over_robots_records_the_robot_of_each_plan_and_needs_an
     starts = TASK.sample_x0(np.random.default_rng(3), 1)
     robots = TASK.parameters.sample(np.random.default_rng(4), 1).reshape(1, -1)
     net = ValueNetwork(TASK.nx, (8,), seed=3, n_params=TASK.parameters.size, theta=TASK.theta, task_name="acrobot")
-    mpc = LimitedLookaheadMPC(TASK, net, 2, jit=False, trust_region="none", model_params=True, estimate_robot=True)
+    mpc = LimitedLookaheadMPC(
+        TASK, net, 2, MPCOptions(jit=False), trust_region="none", model_params=True, estimate_robot=True
+    )
     q = collect_queries(TASK, mpc, starts, robots=robots)
     assert q.theta is not None and q.theta.shape == (q.x.shape[0], TASK.parameters.size)
     np.testing.assert_allclose(q.theta[0], TASK.theta)  # the first plan: the estimate starts at the model
     assert np.abs(q.theta[-1] - TASK.theta).max() > 1e-6  # later ones: the estimate of the simulated robot
-    plain = LimitedLookaheadMPC(TASK, ValueNetwork(TASK.nx, (8,), seed=3), 2, jit=False, trust_region="none")
+    plain = LimitedLookaheadMPC(
+        TASK, ValueNetwork(TASK.nx, (8,), seed=3), 2, MPCOptions(jit=False), trust_region="none"
+    )
     with pytest.raises(ValueError, match="needs an MPC that plans over robots"):
         collect_queries(TASK, plain, starts, robots=robots)
 
@@ -344,7 +351,8 @@ def test_param_bench_report_renders_the_committed_result(tmp_path: Path) -> None
     assert "closed-loop" not in plain["methods"] and set(plain["methods"]) == {"adversarial", "uniform", "nominal"}
     config = json.loads(run("--dry-run", "--closed-loop").splitlines()[-1])["acrobot"]
     settings = config["methods"]["closed-loop"]
-    assert settings["cl_uniform_solves"] == config["budget"] // 3 == 100 and settings["value_cap"] == 50.0
+    assert settings["sampler.uniform_solves"] == config["budget"] // 3 == 100
+    assert settings["loss.value_cap"] == 50.0
     stored = json.loads((root / "benchmarks" / "results" / "param_adversary.json").read_text())
     run("--report-from", str(root / "benchmarks" / "results" / "param_adversary.json"), "--out", str(tmp_path))
     text = (tmp_path / "report.md").read_text()
