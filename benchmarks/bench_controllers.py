@@ -48,6 +48,7 @@ from seagul_control.evaluation import (  # noqa: E402
     start_grid,
 )
 from seagul_envs import make_task  # noqa: E402
+from seagul_learn import recipes  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 
@@ -137,9 +138,11 @@ def learned_row(task_name: str) -> dict[str, Any]:
 
 def training_env_steps(task_name: str, block: dict[str, Any]) -> tuple[int, int]:
     """Environment steps spent making a ``closed_loop.json`` block's network: the closed-loop sampler's collection
-    episodes, and the episodes its refit selection flies (every ``refit_ensemble``-subset of the
-    ``refit_candidates`` refits ``select_episodes`` starts, the best ``select_finalists`` subsets
-    ``select_final_episodes`` more; the selection settings are the task's recipe, which the block's method trains)."""
+    episodes (from the block's ``train_settings``, stored under the flat names ``cl_uniform_solves``,
+    ``solves_per_round``, ``cl_episodes``), and the episodes its refit selection flies (every ``refit.ensemble``-subset
+    of the ``refit.candidates`` refits ``selection.episodes`` starts, the best ``selection.finalists`` subsets
+    ``selection.final_episodes`` more; the selection settings are the task's default recipe,
+    ``seagul_learn/recipes/<task>.yml``, which the block's method trains)."""
     task = make_task(task_name)
     steps_per_episode = round(task.tau_nominal / task.control_period)
     train = block.get("train_settings", {})
@@ -148,13 +151,14 @@ def training_env_steps(task_name: str, block: dict[str, Any]) -> tuple[int, int]
     tail_solves = int(block["budget"]) - int(train.get("cl_uniform_solves", 0))
     rounds = max(0, tail_solves // int(train.get("solves_per_round", 50)))
     collection = rounds * int(train.get("cl_episodes", 0)) * steps_per_episode
-    recipe = dict(task.profile.train_recipe or {})
-    candidates, size = int(recipe.get("refit_candidates", 0)), int(recipe.get("refit_ensemble", 1))
-    if candidates <= size or int(recipe.get("refit_steps", 0)) <= 0:
+    recipe = recipes.recipe(task, "default")  # nested as TrainConfig.to_dict; parts left out take no selection
+    refit, select = recipe.get("refit", {}), recipe.get("selection", {})
+    candidates, size = int(refit.get("candidates", 0)), int(refit.get("ensemble", 1))
+    if candidates <= size or int(refit.get("steps", 0)) <= 0:
         return collection, 0
     subsets = math.comb(candidates, size)
-    finalists = min(int(recipe.get("select_finalists", 0)), subsets)
-    episodes = subsets * int(recipe.get("select_episodes", 0)) + finalists * int(recipe.get("select_final_episodes", 0))
+    finalists = min(int(select.get("finalists", 0)), subsets)
+    episodes = subsets * int(select.get("episodes", 0)) + finalists * int(select.get("final_episodes", 0))
     return collection, episodes * steps_per_episode
 
 
