@@ -336,7 +336,7 @@ def test_collect_queries_records_the_visited_states_in_order():
 def test_select_members_scores_every_subset_on_training_starts_and_keeps_the_best(monkeypatch):
     """Every subset of the candidates flies the same seeded training starts; the best wins, the first of ties."""
     import seagul_control.evaluation as evaluation
-    from seagul_learn.closed_loop import select_members
+    from seagul_learn.member_selection import select_members
     from seagul_learn.value_network import ValueEnsemble
 
     task = make_task("acrobot")
@@ -386,7 +386,7 @@ def test_grid_slice_starts_lie_on_the_evaluation_grids_slice_of_x0():
     """``sample_grid_slice``: the grid's two coordinates uniform over X0's range (spread over it), the others where
     the grid holds them (acrobot at rest, glider at X0's centre); seeded draws repeat."""
     from seagul_control.evaluation import sample_grid_slice, start_grid
-    from seagul_learn.closed_loop import _selection_starts
+    from seagul_learn.member_selection import _selection_starts
 
     for name in ("acrobot", "glider"):
         task = make_task(name)

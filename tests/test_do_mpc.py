@@ -12,7 +12,7 @@ pytest.importorskip("do_mpc", reason="do-mpc is an optional extra: pip install '
 
 from seagul_control.do_mpc_policy import INSTALL_HINT, DoMPCPolicy
 from seagul_control.evaluation import POLICY_KINDS, PolicySpec, build_policy, evaluate, run_policy_episode
-from seagul_control.mpc import LimitedLookaheadMPC
+from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
 from seagul_envs import make_task
 
 HORIZON = 5
@@ -33,7 +33,7 @@ def test_first_action_matches_the_project_mpc(acrobot, acrobot_policy):
     # 1e-9 from a cold start: the optimal first inputs agree to 1e-5 N m (observed <= 2e-8; 1e-5 leaves room for the
     # two solvers' different stopping points on a problem whose input Hessian is ~dt * R = 1e-3 at its smallest).
     # The starts are X0 draws whose first input is not on a bound (a saturated input would agree trivially).
-    project = LimitedLookaheadMPC(acrobot, None, horizon=HORIZON, jit=False, tol=1e-9, max_iter=200)
+    project = LimitedLookaheadMPC(acrobot, None, HORIZON, MPCOptions(jit=False, tol=1e-9, max_iter=200))
     starts = [
         acrobot.goal + np.array([0.05, -0.05, 0.1, -0.1]),
         *np.random.default_rng(1).uniform(acrobot.x0_low, acrobot.x0_high, size=(3, acrobot.nx)),

@@ -8,12 +8,14 @@ import numpy as np
 import pytest
 
 from seagul_control.estimation import ParameterEstimator
-from seagul_control.mpc import LimitedLookaheadMPC
+from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
 from seagul_envs import make_task
 from seagul_learn.value_network import ValueNetwork
 
 TASK = make_task("acrobot")
 X = np.array([np.pi - 0.2, 0.15, 0.1, -0.2])
+NO_JIT = MPCOptions(jit=False)
+"""The MPCs of these tests run CasADi's virtual machine: nothing to compile for a few solves."""
 
 
 def _network() -> ValueNetwork:
@@ -28,8 +30,8 @@ def _network() -> ValueNetwork:
 def test_set_robot_plans_like_an_mpc_built_for_that_robot_and_leaves_the_callers_network_alone():
     net = _network()
     theta = TASK.parameters.low + 0.8 * (TASK.parameters.high - TASK.parameters.low)
-    options = dict(jit=False, trust_region="none", solver="ipopt", tol=1e-10, max_iter=200)
-    shared = LimitedLookaheadMPC(TASK, net, 5, model_params=True, **options)
+    options = MPCOptions(jit=False, solver="ipopt", tol=1e-10, max_iter=200)
+    shared = LimitedLookaheadMPC(TASK, net, 5, options, trust_region="none", model_params=True)
     u_nominal, info = shared.act(X, 5.0)
     assert info.success
     shared.set_robot(theta)
@@ -37,7 +39,9 @@ def test_set_robot_plans_like_an_mpc_built_for_that_robot_and_leaves_the_callers
     shared.reset()
     u_robot, info = shared.act(X, 5.0)
     assert info.success
-    rebuilt = LimitedLookaheadMPC(TASK.with_params(theta), net, 5, **options)  # conditioned on its task's robot
+    rebuilt = LimitedLookaheadMPC(
+        TASK.with_params(theta), net, 5, options, trust_region="none"
+    )  # conditioned on its task's robot
     u_ref, _ = rebuilt.act(X, 5.0)
     np.testing.assert_allclose(u_robot, u_ref, atol=1e-6)
     assert abs(float(u_robot[0] - u_nominal[0])) > 1e-3  # another robot, another action
@@ -49,12 +53,12 @@ def test_set_robot_plans_like_an_mpc_built_for_that_robot_and_leaves_the_callers
 
 
 def test_set_robot_needs_parameters_to_plan_with():
-    plain = LimitedLookaheadMPC(TASK, None, 5, jit=False)
+    plain = LimitedLookaheadMPC(TASK, None, 5, NO_JIT)
     with pytest.raises(ValueError, match="set_robot needs"):
         plain.set_robot(TASK.theta)
     with pytest.raises(ValueError, match="model_params=True needs a task"):
-        LimitedLookaheadMPC(dataclasses.replace(TASK, parameters=None), None, 5, jit=False, model_params=True)
-    mpc = LimitedLookaheadMPC(TASK, None, 5, jit=False, model_params=True)
+        LimitedLookaheadMPC(dataclasses.replace(TASK, parameters=None), None, 5, NO_JIT, model_params=True)
+    mpc = LimitedLookaheadMPC(TASK, None, 5, NO_JIT, model_params=True)
     with pytest.raises(ValueError, match="unknown parameter"):
         mpc.set_robot({"mass": 1.0})
 
@@ -95,7 +99,13 @@ def test_an_estimating_mpc_plans_for_its_estimate_and_forgets_it_at_a_new_episod
     space = TASK.parameters
     theta = space.low + 0.75 * (space.high - space.low)
     mpc = LimitedLookaheadMPC(
-        TASK, _network(), 5, jit=False, trust_region="none", solver="ipopt", model_params=True, estimate_robot=True
+        TASK,
+        _network(),
+        5,
+        MPCOptions(jit=False, solver="ipopt"),
+        trust_region="none",
+        model_params=True,
+        estimate_robot=True,
     )
     sim = TASK.with_params(theta).simulator(TASK.control_period)
     x, tau = X.copy(), 5.0
@@ -109,4 +119,4 @@ def test_an_estimating_mpc_plans_for_its_estimate_and_forgets_it_at_a_new_episod
     mpc.predict(obs, episode_start=np.array([True]))  # a new episode: its first step plans for the model
     np.testing.assert_array_equal(mpc.robot, TASK.theta)
     with pytest.raises(ValueError, match="estimate_robot needs model_params"):
-        LimitedLookaheadMPC(TASK, None, 5, jit=False, estimate_robot=True)
+        LimitedLookaheadMPC(TASK, None, 5, NO_JIT, estimate_robot=True)
