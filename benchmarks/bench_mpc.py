@@ -44,6 +44,7 @@ GUARDS = ("lqr", "box", "none")
 
 def train_network(task: str, budget: int, quick: bool, work_dir: Path) -> Path:
     """Train (or reuse) a SEAGuL value network; returns the ``network.pt`` path."""
+    from seagul_learn import RuntimeConfig
     from seagul_learn.training import TrainConfig, train
 
     out = work_dir / f"{task}_adv{budget}{'_quick' if quick else ''}"
@@ -55,8 +56,7 @@ def train_network(task: str, budget: int, quick: bool, work_dir: Path) -> Path:
         sampler="adversarial",
         budget=budget,
         validate=not quick,
-        progress=False,
-        workers=1,
+        runtime=RuntimeConfig(progress=False, workers=1),
     )
     train(config, out, resume=(out / "checkpoint.pt").is_file())
     return network

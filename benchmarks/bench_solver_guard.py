@@ -2,7 +2,7 @@
 
 fatrop cannot stop itself inside one iteration (``seagul_control._watchdog``), so a guarded fatrop solve runs in a
 forked child and its arguments and results cross a pipe. This benchmark runs the shipped learned 5-step MPC
-(``benchmarks/results/closed_loop.json``) with the guard (``max_solve_time=5``, the default) and without it
+(``benchmarks/results/closed_loop.json``) with the guard (``MPCOptions(max_solve_time=5)``, the default) and without it
 (``max_solve_time=None``) on the same held-out starts, the two controllers interleaved episode by episode so both
 see the same machine load, and reports each one's step time (median, p95) and their ratio. Both must take the same
 actions (the guard only moves where the solve runs).
@@ -38,6 +38,7 @@ def main(argv: list[str] | None = None) -> int:
 
     from seagul_control import LimitedLookaheadMPC
     from seagul_control.evaluation import heldout_starts
+    from seagul_control.mpc import MPCOptions
     from seagul_envs import make_task
     from seagul_learn import ValueNetwork
 
@@ -45,10 +46,12 @@ def main(argv: list[str] | None = None) -> int:
     task = make_task("acrobot")
     network = ValueNetwork.load(ROOT / shipped["network"])
     # fatrop: the guard's forked child exists for it (the condensed solver, the acrobot's default, needs none).
-    common = {"horizon": int(shipped["horizon"]), "trust_region": shipped["trust_region"], "solver": "fatrop"}
+    horizon, guard = int(shipped["horizon"]), shipped["trust_region"]
     mpcs = {
-        "guarded": LimitedLookaheadMPC(task, network, max_solve_time=5.0, **common),
-        "unguarded": LimitedLookaheadMPC(task, network, max_solve_time=None, **common),
+        name: LimitedLookaheadMPC(
+            task, network, horizon, MPCOptions(solver="fatrop", max_solve_time=limit), trust_region=guard
+        )
+        for name, limit in (("guarded", 5.0), ("unguarded", None))
     }
     times: dict[str, list[float]] = {k: [] for k in mpcs}
     diff = 0.0

@@ -61,6 +61,7 @@ import scipy.linalg
 from gymnasium.utils.env_checker import check_env
 
 from seagul_control import LimitedLookaheadMPC
+from seagul_control.mpc import MPCOptions
 from seagul_envs import (
     EvaluationGrid,
     SuccessRule,
@@ -70,7 +71,18 @@ from seagul_envs import (
     make_env,
     rk4_map,
 )
-from seagul_learn import TrainConfig, TrajectoryOptimizer, solve_many, train
+from seagul_learn import (
+    LossConfig,
+    NetworkConfig,
+    RefitConfig,
+    RuntimeConfig,
+    ScheduleConfig,
+    TrainConfig,
+    TrajectoryOptimizer,
+    solve_many,
+    train,
+)
+from seagul_learn.closed_loop import ClosedLoopOptions
 from seagul_learn.parallel import shutdown_ray_pool
 
 
@@ -290,28 +302,22 @@ def main(cfg: Config) -> None:
     #    refit ensemble.
     config = TrainConfig(
         task=task,
-        sampler="closed-loop",
+        sampler=ClosedLoopOptions(
+            uniform_solves=cfg.uniform_solves,
+            episodes=cfg.cl_episodes,
+            trust_region="none",
+            warmup_rounds=2,
+            collect_refit=True,
+            selection="random",
+            jit=False,
+        ),
         budget=cfg.budget,
-        solves_per_round=cfg.solves_per_round,
-        train_steps_per_round=cfg.train_steps_per_round,
-        sobolev_weight=cfg.sobolev_weight,
-        hidden=cfg.hidden,
-        renormalize=True,
-        grad_label_max=10.0,
-        refit_steps=cfg.refit_steps,
-        refit_ensemble=cfg.refit_ensemble,
-        ensemble_pessimism=0.0,
-        cl_uniform_solves=cfg.uniform_solves,
-        cl_episodes=cfg.cl_episodes,
-        cl_trust_region="none",
-        cl_warmup_rounds=2,
-        cl_collect_refit=True,
-        cl_selection="random",
-        cl_jit=False,
-        workers=cfg.workers,
+        schedule=ScheduleConfig(solves_per_round=cfg.solves_per_round, train_steps_per_round=cfg.train_steps_per_round),
+        loss=LossConfig(sobolev_weight=cfg.sobolev_weight, renormalize=True, grad_label_max=10.0),
+        network=NetworkConfig(hidden=cfg.hidden, pessimism=0.0),
+        refit=RefitConfig(steps=cfg.refit_steps, ensemble=cfg.refit_ensemble),
         solver_options=solver_options,
-        cache_dir=str(out / "cache"),
-        progress=False,
+        runtime=RuntimeConfig(workers=cfg.workers, cache_dir=str(out / "cache"), progress=False),
     )
     start = time.perf_counter()
     trained = train(config, out / "train")
@@ -325,7 +331,7 @@ def main(cfg: Config) -> None:
     # 5. The network as terminal cost of a limited-lookahead MPC with the library's default guard (trust_region
     #    "lqr": Vhat + l_f), in a plain Gymnasium loop from hanging at rest.
     horizon = task.profile.default_horizon(task)
-    policy = LimitedLookaheadMPC(task, trained.network, horizon=horizon, jit=False)
+    policy = LimitedLookaheadMPC(task, trained.network, horizon, MPCOptions(jit=False))
     start = time.perf_counter()
     env = make_env(task)
     obs, info = env.reset(options={"state": np.zeros(4)})

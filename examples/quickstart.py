@@ -26,7 +26,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 import seagul_envs  # noqa: F401  (registers the envs)
 from seagul_control import LimitedLookaheadMPC, LQRPolicy
 from seagul_envs import make_task
-from seagul_learn import TrainConfig, TrajectoryOptimizer, train
+from seagul_learn import ScheduleConfig, TrainConfig, TrajectoryOptimizer, train
 
 
 @dataclass
@@ -65,7 +65,7 @@ def main(cfg: Config) -> None:
         task=cfg.task,
         sampler="adversarial",
         budget=cfg.budget,
-        train_steps_per_round=cfg.train_steps_per_round,
+        schedule=ScheduleConfig(train_steps_per_round=cfg.train_steps_per_round),
         seed=cfg.seed,
     )
     trained = train(config, out / "adversarial")

@@ -4,15 +4,15 @@ Why: the sampler-driven training fixes its output standardisation from the 10 pr
 tail labels (values up to the cap, with large dual gradients) arrive many standard deviations out and wreck the fit
 (docs/experiments/closed-loop.md, "Why the unguarded learned cost fails", point 7). This script fits a fresh network to
 the whole dataset with the standardisation taken from all (capped) labels and the gradient labels whose standardised
-norm exceeds ``--grad-max`` dropped: the run's config with ``TrainConfig.refit_steps`` etc. overridden, fitted by
+norm exceeds ``--grad-max`` dropped: the run's config with ``TrainConfig.refit.steps`` etc. overridden, fitted by
 :func:`seagul_learn.training.refit`.
 
     python scripts/refit_value.py RUN --cap 50 --grad-max 10 --hidden 64,64 --steps 20000 --out refit.pt
 
 With ``--candidates N --ensemble K`` it fits ``N`` members and keeps the ``K`` whose MPC flies best on training starts
-(``TrainConfig.refit_candidates``, :func:`seagul_learn.training.refit_and_select`): ``network_candidates.pt`` and
+(``TrainConfig.refit.candidates``, :func:`seagul_learn.training.refit_and_select`): ``network_candidates.pt`` and
 ``network_selection.json`` are written beside ``--out``. Batch size and seed default to the run's own, so the
-result is what the run would have deployed with ``refit_candidates``.
+result is what the run would have deployed with ``refit.candidates``.
 
 Prints the number of knots; the last line is a JSON object with the output path, the counts (knots, gradient labels
 used) and the wall time.
@@ -23,7 +23,6 @@ from __future__ import annotations
 import argparse
 import json
 import time
-from dataclasses import replace
 from pathlib import Path
 
 import torch
@@ -60,25 +59,26 @@ def main() -> None:
         parser.error("--cap and --grad-max must be > 0 and --steps >= 1")
 
     stored = TrainConfig.from_run(args.run)
-    config = replace(
-        stored,
-        value_cap=args.cap,
-        grad_label_max=args.grad_max,
-        hidden=tuple(int(w) for w in args.hidden.split(",")),
-        refit_steps=args.steps,
-        batch_size=stored.batch_size if args.batch_size is None else args.batch_size,
-        lr=args.lr,
-        sobolev_weight=args.sobolev,
-        seed=stored.seed if args.seed is None else args.seed,
-        torch_threads=args.threads,
-        ensemble=args.ensemble,
-        ensemble_pessimism=args.pessimism,
-        refit_ensemble=args.ensemble if args.candidates else stored.refit_ensemble,
-        refit_candidates=args.candidates,
-        select_episodes=args.select_episodes,
-        select_finalists=args.finalists,
-        select_final_episodes=args.final_episodes,
-        select_slice_fraction=args.slice_fraction,
+    config = stored.replaced(
+        **{
+            "loss.value_cap": args.cap,
+            "loss.grad_label_max": args.grad_max,
+            "loss.sobolev_weight": args.sobolev,
+            "network.hidden": tuple(int(w) for w in args.hidden.split(",")),
+            "network.ensemble": args.ensemble,
+            "network.pessimism": args.pessimism,
+            "refit.steps": args.steps,
+            "refit.ensemble": args.ensemble if args.candidates else stored.refit.ensemble,
+            "refit.candidates": args.candidates,
+            "schedule.batch_size": stored.schedule.batch_size if args.batch_size is None else args.batch_size,
+            "schedule.lr": args.lr,
+            "seed": stored.seed if args.seed is None else args.seed,
+            "runtime.torch_threads": args.threads,
+            "selection.episodes": args.select_episodes,
+            "selection.finalists": args.finalists,
+            "selection.final_episodes": args.final_episodes,
+            "selection.slice_fraction": args.slice_fraction,
+        }
     )
     task = config.resolve_task()
     meta = json.loads((args.run / "dataset" / "dataset.json").read_text())["meta"]
@@ -94,8 +94,8 @@ def main() -> None:
         args.out.parent.mkdir(parents=True, exist_ok=True)
         network = refit_and_select(config, task, arrays, trainer, args.out.parent)
     else:
-        network = refit(config, task, arrays, trainer)  # the same refit as TrainConfig.refit_steps
-    used = int(_as_tensors(arrays, config.value_cap, config.grad_label_max, network)["grad_ok"].sum())
+        network = refit(config, task, arrays, trainer)  # the same refit as TrainConfig.refit.steps
+    used = int(_as_tensors(arrays, config.loss.value_cap, config.loss.grad_label_max, network)["grad_ok"].sum())
     network.save(args.out)
     result = {
         "network": str(args.out),
