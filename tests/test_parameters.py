@@ -14,6 +14,7 @@ import numpy as np
 import pytest
 
 from seagul_control.transcription import Transcription
+from seagul_control.transcription_options import TranscriptionOptions
 from seagul_envs.tasks import make_task, validate_task
 from seagul_envs.tasks.parameters import ParameterSpace
 from seagul_learn.trajopt import TrajectoryOptimizer
@@ -76,7 +77,7 @@ def test_with_params_records_the_values_keeps_the_objective_and_names_bad_input(
     with pytest.raises(ValueError, match=r"declares which parameters vary \(Task.parameters\)"):
         fixed.with_params({"m1": 1.0})
     with pytest.raises(ValueError, match="model_params=True needs a task"):
-        Transcription(fixed, model_params=True)
+        Transcription(fixed, options=TranscriptionOptions(model_params=True))
 
 
 def test_validate_task_rejects_parametric_dynamics_that_disagree_with_the_model():
@@ -99,18 +100,22 @@ def test_validate_task_rejects_parametric_dynamics_that_disagree_with_the_model(
 def test_one_parametric_transcription_solves_every_robot_like_the_rebuilt_task():
     task = make_task("acrobot")
     x0 = np.array([np.pi - 0.25, 0.2, 0.3, -0.2])
-    parametric = Transcription(task, model_params=True, solver_options=QUIET)
+    parametric = Transcription(task, options=TranscriptionOptions(model_params=True, solver_options=QUIET))
     assert parametric.num_parameters == task.nx + 1 + task.parameters.size
     for theta in (task.parameters.low, task.parameters.high):
         sol = parametric.solve(x0, task.tau_nominal, model_params=theta)
-        ref = Transcription(task.with_params(theta), solver_options=QUIET).solve(x0, task.tau_nominal)
+        ref = Transcription(task.with_params(theta), options=TranscriptionOptions(solver_options=QUIET)).solve(
+            x0, task.tau_nominal
+        )
         assert sol.success and ref.success
         assert sol.objective == pytest.approx(ref.objective, rel=1e-8)
         np.testing.assert_allclose(sol.param_sensitivity[: task.nx + 1], ref.param_sensitivity, rtol=1e-5, atol=1e-6)
     with pytest.raises(ValueError, match="model_params must have 6 entries"):
         parametric.solve(x0, task.tau_nominal, model_params=[1.0])
     with pytest.raises(ValueError, match="built without model_params=True"):
-        Transcription(task, solver_options=QUIET).solve(x0, task.tau_nominal, model_params=task.theta)
+        Transcription(task, options=TranscriptionOptions(solver_options=QUIET)).solve(
+            x0, task.tau_nominal, model_params=task.theta
+        )
 
 
 def fd_grad_theta(task, x0, theta, rel_step=1e-4):
