@@ -27,7 +27,7 @@ from typing import Any, Literal
 import casadi as ca
 import numpy as np
 
-from seagul_control.transcription import Transcription, TranscriptionSolution
+from seagul_control.transcription import Transcription, TranscriptionOptions, TranscriptionSolution
 from seagul_envs.tasks import make_task
 from seagul_envs.tasks.base import Task, rk4_map
 from seagul_learn.results import SolveResult
@@ -108,8 +108,8 @@ class TrajOptConfig:
     soft_bounds_weight: float | None = None
     """None: the state bounds (path bounds, terminal box) are hard constraints (the full problem). A weight ``M > 0``
     makes them the exact L1 penalty ``M * sum_k sum_i max(0, x_k,i - hi, lo - x_k,i)`` over knots ``1..m``
-    (``Transcription(soft_bounds_weight=M)``; IPOPT attempts only): the value where the bounds can be met, a finite,
-    graded value where they cannot (tails from the glider's planned terminal states, from which the perch may be
+    (``TranscriptionOptions(soft_bounds_weight=M)``; IPOPT attempts only): the value where the bounds can be met, a
+    finite, graded value where they cannot (tails from the glider's planned terminal states, from which the perch may be
     unreachable or a crash unavoidable). The penalties are part of the value and of every knot's label."""
     model_params: bool = False
     """The task's varying physical parameters (``task.parameters``) enter every solver as NLP parameters:
@@ -117,10 +117,11 @@ class TrajOptConfig:
     robot in ``Theta``, and ``SolveResult.grad_theta = dV/dtheta`` comes from the multipliers (CasADi's ``lam_p``)."""
     max_solve_time: float | None = 30.0
     """Wall-time limit of one attempt (s; None: none). IPOPT stops itself (``ipopt.max_wall_time``, unless
-    ``solver_options`` sets its own); a fatrop attempt runs in a killable child (``Transcription(max_solve_time=)``,
-    :mod:`seagul_control._watchdog`) and an overrun fails with status ``"timeout: ..."``, so the plan's next attempt
-    takes over. fatrop's regularisation loop has no upper bound: one full solve from an adversarial start looped for
-    50 minutes inside fatrop and stopped a 2,000-solve training run (docs/experiments/closed-loop.md)."""
+    ``solver_options`` sets its own); a fatrop attempt runs in a killable child
+    (``TranscriptionOptions(max_solve_time=)``, :mod:`seagul_control._watchdog`) and an overrun fails with status
+    ``"timeout: ..."``, so the plan's next attempt takes over. fatrop's regularisation loop has no upper bound: one
+    full solve from an adversarial start looped for 50 minutes inside fatrop and stopped a 2,000-solve training run
+    (docs/experiments/closed-loop.md)."""
     codegen: bool = True
     """Compile the NLP functions to C (cached on disk) when a compiler is available."""
     solver_options: tuple[tuple[str, Any], ...] = ()
@@ -267,9 +268,7 @@ class TrajectoryOptimizer:
 
     def _transcription(self, solver: str) -> Transcription:
         if solver not in self._transcriptions:
-            self._transcriptions[solver] = Transcription(
-                self.task,
-                self.horizon,
+            options = TranscriptionOptions(
                 substeps=self.config.substeps,
                 solver="fatrop" if solver == "fatrop" else "ipopt",
                 solver_options=self._solver_options(solver),
@@ -278,6 +277,7 @@ class TrajectoryOptimizer:
                 model_params=self.config.model_params,
                 max_solve_time=self.config.max_solve_time,
             )
+            self._transcriptions[solver] = Transcription(self.task, self.horizon, options)
         return self._transcriptions[solver]
 
     def prepare(self) -> TrajectoryOptimizer:

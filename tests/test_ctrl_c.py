@@ -72,7 +72,7 @@ def test_ctrl_c_during_an_ipopt_solve_raises_after_it(default_sigint):
     from seagul_envs import make_task
 
     task = make_task("acrobot")
-    tr = transcription.Transcription(task, solver="ipopt", codegen=False)
+    tr = transcription.Transcription(task, None, transcription.TranscriptionOptions(solver="ipopt", codegen=False))
     x0 = np.array([0.3, 0.2, 0.0, 0.0])  # far from upright: ~110 interpreted IPOPT iterations, ~0.5 s
     tr.solve(x0, task.tau_nominal)  # built before the interrupt
     timer = threading.Timer(0.05, os.kill, (os.getpid(), signal.SIGINT))
@@ -92,13 +92,13 @@ def test_ctrl_c_during_a_guarded_solve_kills_its_child_and_the_next_solve_is_its
     solving) is killed, so its late reply can never answer the next solve, which equals the uninterrupted one."""
     from seagul_control import _watchdog
     from seagul_control._watchdog import ForkedSolver
-    from seagul_control.transcription import Transcription
+    from seagul_control.transcription import Transcription, TranscriptionOptions
     from seagul_envs import make_task
 
     if not ForkedSolver.supported:
         pytest.skip("needs os.fork")
     task = make_task("acrobot")
-    trans = Transcription(task, 5, step=0.1, solver="fatrop", max_solve_time=30.0)
+    trans = Transcription(task, 5, TranscriptionOptions(step=0.1, solver="fatrop", max_solve_time=30.0))
     x = np.array([0.3, -0.2, 0.0, 0.0])
     reference = trans.solve(x, 5.0)
     server = _watchdog._server()

@@ -21,8 +21,8 @@ import pytest
 
 from seagul_control import _watchdog
 from seagul_control._watchdog import ForkedSolver, SolveTimeout
-from seagul_control.mpc import LimitedLookaheadMPC
-from seagul_control.transcription import Transcription
+from seagul_control.mpc import FullHorizonMPC, LimitedLookaheadMPC, MPCOptions
+from seagul_control.transcription import Transcription, TranscriptionOptions
 from seagul_envs import make_task
 
 pytestmark = pytest.mark.skipif(not ForkedSolver.supported, reason="needs os.fork")
@@ -68,8 +68,8 @@ def _child_alive(pid: int | None) -> bool:
 
 def test_guarded_fatrop_solve_equals_the_direct_one():
     task = make_task("acrobot")
-    direct = Transcription(task, 5, step=0.1, solver="fatrop")
-    guarded = Transcription(task, 5, step=0.1, solver="fatrop", max_solve_time=5.0)
+    direct = Transcription(task, 5, TranscriptionOptions(step=0.1, solver="fatrop"))
+    guarded = Transcription(task, 5, TranscriptionOptions(step=0.1, solver="fatrop", max_solve_time=5.0))
     a, b = direct.solve(X, 5.0), guarded.solve(X, 5.0)
     assert a.success and b.success
     assert b.status == a.status and b.iterations == a.iterations
@@ -83,7 +83,7 @@ def test_guarded_fatrop_solve_equals_the_direct_one():
 
 def test_a_solve_that_never_returns_is_stopped_at_the_limit_and_the_next_one_works():
     task = make_task("acrobot")
-    trans = Transcription(task, 5, step=0.1, solver="fatrop", max_solve_time=60.0)
+    trans = Transcription(task, 5, TranscriptionOptions(step=0.1, solver="fatrop", max_solve_time=60.0))
     reference = trans.solve(X, 5.0)
     server, key = _hang_next_solve(trans)
     forks = server.forks
@@ -121,7 +121,7 @@ def test_forked_solver_raises_timeout_and_reports_solver_errors():
 
 def test_the_mpc_falls_back_when_a_step_hits_the_limit():
     task = make_task("acrobot")
-    mpc = LimitedLookaheadMPC(task, None, horizon=5, jit=False, max_solve_time=60.0, solver="fatrop")
+    mpc = LimitedLookaheadMPC(task, None, 5, MPCOptions(jit=False, max_solve_time=60.0, solver="fatrop"))
     _, info0 = mpc.act(X, 5.0)
     assert info0.source == "solver"
     problem, _ = mpc._select(4.9)
@@ -140,15 +140,15 @@ def test_the_mpc_falls_back_when_a_step_hits_the_limit():
 
 def test_ipopt_gets_its_own_wall_time_limit_and_bad_limits_are_named():
     task = make_task("acrobot")
-    trans = Transcription(task, 5, step=0.1, solver="ipopt", max_solve_time=1e-6)
+    trans = Transcription(task, 5, TranscriptionOptions(step=0.1, solver="ipopt", max_solve_time=1e-6))
     assert trans._guard is None  # IPOPT stops itself (ipopt.max_wall_time): no child
     out = trans.solve(X, 5.0)
     assert not out.success and out.status == "Maximum_WallTime_Exceeded"
     for bad in (0.0, -1.0, float("nan"), float("inf")):
         with pytest.raises(ValueError, match="max_solve_time"):
-            Transcription(task, 5, step=0.1, solver="fatrop", max_solve_time=bad)
+            Transcription(task, 5, TranscriptionOptions(step=0.1, solver="fatrop", max_solve_time=bad))
         with pytest.raises(ValueError, match="max_solve_time"):
-            LimitedLookaheadMPC(task, None, horizon=5, jit=False, max_solve_time=bad)
+            LimitedLookaheadMPC(task, None, 5, MPCOptions(jit=False, max_solve_time=bad))
 
 
 def test_a_trajectory_optimizer_attempt_that_never_returns_gives_way_to_the_next_attempt():
@@ -191,7 +191,7 @@ def test_a_solving_child_that_dies_fails_that_solve_and_the_next_one_works():
     that ends an evaluation or a training run; the next solve forks a fresh child. The child kills itself inside
     the solve: no timer races the fork."""
     task = make_task("acrobot")
-    trans = Transcription(task, 5, step=0.1, solver="fatrop", max_solve_time=600.0)
+    trans = Transcription(task, 5, TranscriptionOptions(step=0.1, solver="fatrop", max_solve_time=600.0))
     reference = trans.solve(X, 5.0)
     server, key = _hang_next_solve(trans)
     server.solvers[key] = _Crash()
@@ -243,10 +243,9 @@ def _state(pid: int) -> str:
 def test_the_full_horizon_reference_gets_more_time_per_solve_than_a_real_time_step():
     """``FullHorizonMPC`` defaults to 60 s per solve (the lookahead: 5 s), and its problems carry that limit: at 5 s a
     loaded machine timed out the glider reference's steps and changed its episodes."""
-    from seagul_control.mpc import FullHorizonMPC
 
     task = make_task("acrobot")
-    lookahead = LimitedLookaheadMPC(task, None, horizon=5, jit=False)
+    lookahead = LimitedLookaheadMPC(task, None, 5, MPCOptions(jit=False))
     full = FullHorizonMPC(task)
     assert lookahead.max_solve_time == 5.0 and full.max_solve_time == 60.0
     problem, _ = full._select(4.9)

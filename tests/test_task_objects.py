@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from seagul_control import transcription as tr_mod
-from seagul_control.transcription import Transcription, compile_nlp_library
+from seagul_control.transcription import Transcription, TranscriptionOptions, compile_nlp_library
 from seagul_envs import make_task
 from seagul_envs.tasks import available_tasks, resolve_task
 from seagul_envs.tasks.acrobot import AcrobotParams, make_acrobot_task
@@ -223,7 +223,9 @@ def test_the_transcription_hands_the_task_fingerprint_to_the_compiled_solver_cac
     monkeypatch.setattr(tr_mod, "compile_nlp_library", record)
     for task in (make_task("acrobot"), variant):
         with pytest.warns(UserWarning, match="not compiled in this test"):
-            Transcription(task, 1, free_time=False, step=0.1, codegen=True, codegen_dir=tmp_path)
+            Transcription(
+                task, 1, TranscriptionOptions(free_time=False, step=0.1, codegen=True, codegen_dir=str(tmp_path))
+            )
     name = "acrobot_ipopt_n1"
     assert seen == [(name, make_task("acrobot").fingerprint()), (name, variant.fingerprint())]
 
@@ -234,7 +236,10 @@ def test_compiled_solver_file_names_differ_between_two_variants(tmp_path: Path) 
         pytest.skip("no C compiler")
     kwargs: dict[str, Any] = {"free_time": False, "step": 0.1, "codegen": True, "codegen_dir": tmp_path}
     light, heavy = make_point_mass(1.0), make_point_mass(2.0)
-    a, b = Transcription(light, 1, **kwargs), Transcription(heavy, 1, **kwargs)
+    a, b = (
+        Transcription(light, 1, TranscriptionOptions(**kwargs)),
+        Transcription(heavy, 1, TranscriptionOptions(**kwargs)),
+    )
     assert a.codegen_library is not None and b.codegen_library is not None
     assert a.codegen_library.name.startswith(f"point_mass_ipopt_n1_{light.fingerprint()}_")
     assert b.codegen_library.name.startswith(f"point_mass_ipopt_n1_{heavy.fingerprint()}_")

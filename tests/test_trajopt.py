@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from seagul_control.transcription import Transcription
+from seagul_control.transcription import Transcription, TranscriptionOptions
 from seagul_envs.tasks import make_task
 from seagul_learn.results import SolveResult
 from seagul_learn.trajopt import TrajectoryOptimizer, TrajOptConfig
@@ -102,7 +102,7 @@ def test_glider_grad_x_and_tau_match_fd(glider_result: SolveResult) -> None:
     """FD along the solution's own branch (warm-started): cold solves of nearby starts may land in a neighbouring
     local optimum whose value differs by ~1e-5 relative, which swamps a 1e-5 difference quotient."""
     task = make_task("glider")
-    tr = Transcription(task, codegen=True)
+    tr = Transcription(task, None, TranscriptionOptions(codegen=True))
     value = tail_value(tr, tr.pack_guess(glider_result.states, glider_result.controls, glider_result.steps))
     free = np.flatnonzero(task.x0_high > task.x0_low)  # x, z, dx
     fd = central_fd(lambda v: value(_put(GLIDER_X, free, v), 0.8), GLIDER_X[free], 1e-5)
@@ -277,4 +277,4 @@ def test_soft_bounds_refuse_fatrop_and_bad_weights() -> None:
     with pytest.raises(ValueError, match="needs IPOPT attempts"):  # the glider's default plan tries fatrop
         TrajectoryOptimizer("glider", soft_bounds_weight=1e3)
     with pytest.raises(ValueError, match="needs solver='ipopt'"):
-        Transcription(make_task("glider"), solver="fatrop", soft_bounds_weight=1e3)
+        Transcription(make_task("glider"), None, TranscriptionOptions(solver="fatrop", soft_bounds_weight=1e3))
