@@ -464,7 +464,8 @@ def test_shifted_multipliers_match_the_stage_layout(name):
     assert _shift_guess(plan, other, x, 0.05, 0.5)[1:] == (None, None)  # another layout: no multipliers
 
 
-@pytest.mark.parametrize("ensemble", [False, True])
+# The ensemble case compiles a second, larger library (half a minute cold): the single network covers the contract.
+@pytest.mark.parametrize("ensemble", [False, pytest.param(True, marks=pytest.mark.slow)])
 def test_compiled_matrix_form_value_function_is_the_interpreted_one(tmp_path, ensemble):
     """With ``jit=True`` a ``ValueNetwork``/``ValueEnsemble`` enters the lookahead in its matrix (MX) form, compiled
     unexpanded, with the goal anchor's terms as NLP parameters: the terminal cost, the goal anchor after a new value
