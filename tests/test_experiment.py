@@ -465,3 +465,126 @@ def test_reproduce_runs_the_shipped_recipe_through_the_same_pipeline(tmp_path: P
     text = (out / "report.md").read_text()
     assert "comparison with the shipped recipe (4 solves per network, 2 seeds)" in text
     assert "| shipped-recipe MPC |" in text and "Paired tests against the shipped-recipe method" in text
+
+
+# --------------------------------------------------------------- the closed-loop benchmark's pipeline (library)
+@pytest.mark.parametrize("task_name", ["acrobot", "glider"])
+def test_the_tasks_recipe_is_what_the_benchmark_ships(task_name: str) -> None:
+    """``TrainConfig.recipe(task)`` (``seagul train``'s default) trains exactly what the closed-loop benchmark
+    measured and ships for the task (its full run: the largest budget, the shipped method's settings)."""
+    from seagul_learn.experiment.benchmark import SHIPPED, BenchConfig, method_config
+    from seagul_learn.experiment.methods import train_config
+    from seagul_learn.training import TrainConfig
+
+    bench = BenchConfig.for_task(task_name, quick=False)
+    shipped = train_config(**method_config(bench, SHIPPED), budget=max(bench.budgets))
+    assert TrainConfig.recipe(task_name) == shipped
+    assert TrainConfig.recipe(task_name) != TrainConfig(task=task_name)  # not the paper's defaults
+
+
+def test_the_shipped_recipe_is_the_2000_solve_one_with_its_budget_split_halved() -> None:
+    """The shipped ``closed-loop+rest-1000`` differs from the 2,000-solve ``closed-loop+rest`` it scales down only in
+    how its 1,000 solves split: the same fractions of uniform draws, guarded and deployed-collector rounds."""
+    from seagul_learn.experiment.benchmark import SHIPPED, BenchConfig, method_config
+    from seagul_learn.experiment.methods import flat_settings, train_config
+
+    bench = BenchConfig.for_task("acrobot", quick=False)
+    assert SHIPPED == "closed-loop+rest-1000" and max(bench.budgets) == 1000
+    shipped = flat_settings(train_config(**method_config(bench, "closed-loop+rest"), budget=2000))
+    scaled = flat_settings(train_config(**method_config(bench, SHIPPED), budget=1000))
+
+    def split(c: dict) -> tuple[float, float]:
+        rounds = (c["budget"] - c["cl_uniform_solves"]) / c["solves_per_round"]
+        return c["cl_uniform_solves"] / c["budget"], c["cl_warmup_rounds"] / rounds
+
+    assert split(scaled) == split(shipped) == (0.5, 0.5)
+    assert {k for k in shipped if shipped[k] != scaled[k]} == {"budget", "cl_uniform_solves", "cl_warmup_rounds"}
+
+
+def test_the_glider_block_carries_the_contract_fields() -> None:
+    """The benchmark's glider settings come from the task (horizon, grid), and its block names the perch rate as the
+    contract (``benchmarks/results/closed_loop.json``) spells it."""
+    from seagul_learn.experiment.benchmark import SHIPPED, BenchConfig, method_config, shipped_block
+
+    glider = BenchConfig.for_task("glider", quick=False)
+    assert (glider.horizon, glider.grid, glider.goal_blend) == (10, 6, 0.0)
+    assert glider.train["value_cap"] == 1500.0 and glider.train["refit_steps"] == 0
+    recipe = method_config(glider, SHIPPED)  # what the shipped method trains with and train_settings shows
+    assert (recipe["cl_warmup_rounds"], recipe["cl_collect_refit"], recipe["refit_ensemble"]) == (0, False, 1)
+    assert recipe["cl_keep_best"] is True and recipe["value_cap"] == 1500.0 and recipe["task"] == "glider"
+    rows = [
+        {"seed": s, "success_rate": r, "heldout_success_rate": r, "query_error": {"median": 1.0, "p95": 2.0}}
+        for s, r in enumerate([0.5, 0.9, 0.7])
+    ]
+    full = {"success_rate": 1.0, "heldout_success_rate": float("nan")}
+    timing = {"median_ms": 5.0, "p95_ms": 30.0, "steps": 10, "success_rate": 0.7}
+    block = shipped_block(glider, rows, full, Path("net.pt"), timing, 2000)
+    assert block["perch_success_rate"] == block["success_rate"] == 0.7 and block["method"] == "closed-loop+sobolev"
+    assert block["full_horizon_perch_success_rate"] == 1.0 and block["seeds"] == 3 and block["horizon"] == 10
+    acrobot = BenchConfig.for_task("acrobot", quick=False)
+    assert "perch_success_rate" not in shipped_block(acrobot, rows, full, Path("net.pt"), timing, 2000)
+
+
+def test_the_benchmark_aggregates_several_budgets_with_grid_only_rows_and_draws_the_curve(tmp_path: Path) -> None:
+    """``--aggregate`` over budgets: per-budget folders, a budget may lack seeds or held-out rates; the contract's
+    fields are the shipped budget's; other methods are paired with the shipped one seed by seed; the figure."""
+    from seagul_learn.experiment.benchmark import SHIPPED, BenchConfig, aggregate_task, parse_compare
+
+    glider = BenchConfig.for_task("glider", quick=False)
+    glider.budgets = (2000, 3000)
+    glider.seed_list = (0, 1)
+    (tmp_path / "b2000").mkdir()
+    (tmp_path / "b3000").mkdir()
+    grid_only = {"success_rate": 0.5, "fallback_steps": 3}
+    (tmp_path / "b2000" / "seed0.json").write_text(json.dumps(grid_only))
+    (tmp_path / "b2000" / "seed1.json").write_text(json.dumps({**grid_only, "success_rate": 0.7}))
+    full_row = {"success_rate": 0.9, "heldout_success_rate": 0.8, "fallback_steps": 1, "solve_time_s": 600.0}
+    full_row["query_error"] = {"median": 5.0, "p95": 50.0, "mean_signed": -1.0}
+    (tmp_path / "b3000" / "seed0.json").write_text(json.dumps(full_row))  # seed 1 not evaluated at 3000
+    (tmp_path / "full-horizon.json").write_text(json.dumps({"success_rate": 1.0, "heldout_success_rate": None}))
+    timing = {"median_ms": 5.0, "p95_ms": 9.0, "steps": 3, "success_rate": 1.0}
+    figure = tmp_path / "curve.png"
+    other = tmp_path / "other" / "b2000"
+    other.mkdir(parents=True)
+    for seed, rate in ((0, 0.25), (1, 0.5)):
+        (other / f"seed{seed}.json").write_text(json.dumps({**grid_only, "success_rate": rate}))
+    flat = tmp_path / "flat"  # one budget's seed<N>.json directly in the folder: the budget comes with it
+    flat.mkdir()
+    (flat / "seed1.json").write_text(json.dumps({**grid_only, "success_rate": 0.1}))
+    label, spec = parse_compare(f"closed-loop+rest-2000={flat}@2000")
+    assert (label, spec) == ("closed-loop+rest-2000", (flat, 2000))
+    assert parse_compare("x=a/b")[1] == (Path("a/b"), None)
+    for bad in ("no-label", "=dir", "x=dir@many"):
+        with pytest.raises(ValueError, match="LABEL=DIR"):
+            parse_compare(bad)
+    compare = {"last": (tmp_path / "other", None), label: spec}
+    block = aggregate_task(glider, tmp_path, Path("net.pt"), 3000, figure, compare, timing=timing)
+    assert list(block["methods"][label]["budgets"]) == ["2000"]  # not the shipped budget, 3000
+    assert block["methods"][label]["budgets"]["2000"]["success_median"] == 0.1
+    versus = block["methods"]["last"]["budgets"]["2000"]
+    assert versus["success_median"] == 0.375 and versus["vs_shipped"]["wins"] == 2  # the shipped method, seed by seed
+    assert versus["vs_shipped"]["median_difference"] == pytest.approx(0.225)
+    assert set(versus["vs_shipped"]) == {"median_difference", "wins", "losses", "p"}  # the committed keys
+    assert block["budget"] == 3000 and block["perch_success_rate"] == 0.9 and block["heldout_success_rate"] == 0.8
+    assert block["method"] == "closed-loop+sobolev" and SHIPPED not in block["methods"]  # the glider's name
+    rows = block["methods"]["closed-loop+sobolev"]["budgets"]
+    assert rows["2000"]["success_median"] == 0.6 and rows["2000"]["seeds"] == [0, 1]
+    assert math.isnan(rows["2000"]["heldout_median"]) and rows["3000"]["seeds"] == [0]
+    assert block["train_settings"]["value_cap"] == 1500.0 and figure.stat().st_size > 0
+    assert "network" not in versus  # no row names its network
+
+
+def test_a_method_whose_rows_name_their_networks_gets_the_median_seeds() -> None:
+    """The summary names the representative network of a method (the seed closest to the median; ties: the lower
+    seed) when its rows name their networks."""
+    from seagul_learn.experiment.benchmark import BenchConfig, summarize
+
+    bench = BenchConfig.for_task("acrobot", quick=False)
+    rows = [
+        {"seed": s, "success_rate": r, "heldout_success_rate": h, "network": f"net{s}.pt"}
+        for s, r, h in ((0, 0.1, 0.2), (1, 0.3, 0.1), (2, 0.2, 0.3), (3, 0.25, 0.3))
+    ]
+    summary = summarize(bench, {"uniform": {2000: rows}}, {"success_rate": 1.0})
+    at = summary["uniform"]["budgets"]["2000"]
+    assert at["success_median"] == pytest.approx(0.225) and at["network_seed"] == 2 and at["network"] == "net2.pt"
+    assert summary["uniform"]["smallest_budget_98pct_of_full_horizon"] is None
