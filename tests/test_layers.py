@@ -135,3 +135,31 @@ def test_json_files_are_written_atomically_with_the_callers_layout(tmp_path: Pat
     (tmp_path / "cut.json").write_text('{"a": [1, ')
     with pytest.raises(ValueError, match=r"cut\.json is not a JSON file"):
         io.read_json(tmp_path / "cut.json")
+
+
+# ------------------------------------------------------------------------------------------- seagul_learn's names
+def test_seagul_learns_public_names_resolve_and_the_config_parts_need_no_torch() -> None:
+    """``import seagul_learn`` stays cheap: its names load their module on first use. The TrainConfig parts and the
+    recipes module are plain data and importing them must not pull in torch (reading a recipe validates it as a
+    TrainConfig, which does); every name of ``__all__`` then resolves (``UniformOptions`` to the samplers' class)."""
+    code = (
+        "import sys, seagul_learn as sl; "
+        "from seagul_learn import LossConfig, NetworkConfig, RefitConfig, RuntimeConfig, ScheduleConfig, "
+        "SelectionConfig, recipes; "
+        "import seagul_learn.config_parts as parts; "
+        "assert recipes is sys.modules['seagul_learn.recipes'], 'recipes is not the module'; "
+        "assert (NetworkConfig, RuntimeConfig) == (parts.NetworkConfig, parts.RuntimeConfig); "
+        "sys.exit('torch imported' if 'torch' in sys.modules else 0)"
+    )
+    proc = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr + proc.stdout
+    import seagul_learn
+    from seagul_learn import samplers
+
+    assert seagul_learn.UniformOptions is samplers.UniformOptions
+    assert seagul_learn.recipes.recipe("acrobot", "default")["network"]["hidden"] == [64, 64]
+    assert {"recipes", "UniformOptions", "SelectionConfig"} <= set(seagul_learn.__all__)
+    for name in seagul_learn.__all__:
+        assert getattr(seagul_learn, name) is not None, name
+    with pytest.raises(AttributeError, match="has no attribute 'NoSuchName'"):
+        seagul_learn.NoSuchName  # noqa: B018
