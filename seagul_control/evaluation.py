@@ -1,18 +1,13 @@
 """Closed-loop evaluation: run policies from a grid of starts through the Gymnasium envs and return the results.
 
-Policies are described by :class:`PolicySpec` (picklable) and built inside each worker process (solvers are not
-picklable), once per process and reused for every episode there. How a kind is built is looked up in a registry of
-policy kinds (:func:`register_policy_kind`): kind -> the builder ``builder(task, spec) -> predictor``, named by its
-module path ``"package.module:function"``. :func:`evaluate` resolves each spec's builder path in the calling process
-and sends the path, not the function, to the workers, which import it by name; so joblib/loky workers (which start
-with fresh registries) build every kind the caller could, a kind registered at run time included.
-
-The control kinds are built here: ``"lqr"``, ``"full"`` (the full-horizon MPC), ``"mpc"`` without a file (a
-limited-lookahead MPC with the task's own terminal cost; :func:`build_lookahead_policy` also takes a given value
-function) and ``"do-mpc"`` (the peer MPC tool, ``seagul[anchors]``). The learned kinds, ``"mpc"`` with a saved value
-network and ``"sb3"`` (a saved stable-baselines3 model), are built by :mod:`seagul_learn.policies`: their registry
-entries name that module by path, so it (and torch) is imported only in a process that builds one, and never by
-importing this module. ``seagul_control`` imports neither torch nor ``seagul_learn``.
+Policies are described by :class:`~seagul_control.policy_kinds.PolicySpec` (picklable) and built inside each worker
+process (solvers are not picklable), once per process and reused for every episode there; how each kind is built,
+and the registry that names the builders by module path, is :mod:`seagul_control.policy_kinds`. :func:`evaluate`
+resolves each spec's builder path in the calling process and sends the path, not the function, to the workers, so
+joblib/loky workers build every kind the caller could, a kind registered at run time included. The starts (the
+evaluation grid, the held-out starts) are :mod:`seagul_control.starts`. Both modules' names are also importable
+from here, where they lived first (the same objects, no warning). ``seagul_control`` imports neither torch nor
+``seagul_learn``.
 
 Metrics per episode (paper §6): the final distance to the goal ``||x(T) - x*||``, the trajectory cost (minus the
 episode return: running plus terminal cost, paper Fig. 4) and success by the task's rule (``task.profile.success``:
@@ -34,11 +29,9 @@ above) and the deprecated names (which live in ``seagul_learn``).
 from __future__ import annotations
 
 import importlib
-import threading
 import warnings
-from collections.abc import Callable, Iterator, Mapping, Sequence
-from dataclasses import dataclass, field, fields
-from pathlib import Path
+from collections.abc import Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
 from typing import Any
 
 import gymnasium as gym
@@ -48,11 +41,25 @@ from joblib import Parallel, delayed
 from tqdm.auto import tqdm
 
 import seagul_envs
-from seagul_control.do_mpc_policy import DoMPCPolicy
-from seagul_control.lqr import LQRPolicy
-from seagul_control.mpc import FullHorizonMPC, FullHorizonOptions, LimitedLookaheadMPC, MPCOptions
-from seagul_control.value_function import CasadiValueFunction
-from seagul_envs.tasks import BUILTIN_TASKS, available_tasks, file_task_modules, make_task, resolve_task
+from seagul_control.policy_kinds import (
+    _KINDS,  # noqa: F401  (the registry, where callers that registered a kind here reach it)
+    POLICY_KINDS,
+    PolicyKind,
+    PolicySpec,
+    _build,
+    _canonical_task,
+    build_do_mpc_policy,
+    build_full_horizon_policy,
+    build_lookahead_policy,
+    build_lqr_policy,
+    build_policy,
+    builder_path,
+    default_horizon,
+    policy_kinds,
+    register_policy_kind,
+)
+from seagul_control.starts import HELDOUT_SEED, heldout_starts, sample_grid_slice, start_grid
+from seagul_envs.tasks import BUILTIN_TASKS, file_task_modules, make_task, resolve_task
 from seagul_envs.tasks.acrobot import SUCCESS_DISTANCE as ACROBOT_SUCCESS_DISTANCE
 from seagul_envs.tasks.base import Task
 from seagul_envs.tasks.glider import PERCH_POSITION_TOL, PERCH_SPEED_TOL
@@ -69,8 +76,13 @@ __all__ = [
     "EpisodeResult",
     "PolicyKind",
     "PolicySpec",
+    "build_do_mpc_policy",
+    "build_full_horizon_policy",
+    "build_lookahead_policy",
+    "build_lqr_policy",
     "build_policy",
     "builder_path",
+    "check_env_task",
     "default_horizon",
     "episode_env",
     "evaluate",
@@ -80,141 +92,11 @@ __all__ = [
     "register_policy_kind",
     "run_episode",
     "run_policy_episode",
+    "sample_grid_slice",
     "start_grid",
     "success_at",
     "tolerance_reached",
 ]
-POLICY_KINDS = ("mpc", "full", "lqr", "sb3", "do-mpc")
-"""The built-in policy kinds (:func:`policy_kinds` also lists those registered since)."""
-
-
-# ------------------------------------------------------------------------------------------------ policy kinds
-@dataclass(frozen=True)
-class PolicyKind:
-    """How the policies of one kind are built: builders named by module path (``"package.module:function"``).
-
-    A builder is called as ``builder(task, spec)`` with the :class:`~seagul_envs.tasks.base.Task` and the
-    :class:`PolicySpec` and returns a predictor (``predict(observation, state, episode_start, deterministic)``, the
-    stable-baselines3 protocol). Paths, not functions, so that a worker process imports the builder itself.
-    """
-
-    builder: str | None = None
-    """Builds a spec without a file (``spec.path is None``); None: the kind needs a file."""
-    file_builder: str | None = None
-    """Builds a spec with a file (a saved network or model at ``spec.path``); None: the ``builder`` builds every spec
-    of the kind (a file is ignored)."""
-
-
-# The learned kinds' builders are named here, as strings, so that a spec of such a kind made by code that imported
-# only this module still builds (in any process, workers included); the string is the whole dependency: this module
-# imports nothing from seagul_learn, and a process that never builds a learned kind never imports it.
-_KINDS: dict[str, PolicyKind] = {
-    "mpc": PolicyKind(
-        "seagul_control.evaluation:build_lookahead_policy", "seagul_learn.policies:build_network_mpc_policy"
-    ),
-    "full": PolicyKind("seagul_control.evaluation:build_full_horizon_policy"),
-    "lqr": PolicyKind("seagul_control.evaluation:build_lqr_policy"),
-    "sb3": PolicyKind(None, "seagul_learn.policies:build_sb3_policy"),
-    "do-mpc": PolicyKind("seagul_control.evaluation:build_do_mpc_policy"),
-}
-_KINDS_LOCK = threading.Lock()
-
-
-def register_policy_kind(
-    kind: str, builder: str | None = None, file_builder: str | None = None, *, overwrite: bool = False
-) -> None:
-    """Add a policy kind that :class:`PolicySpec`, :func:`build_policy` and :func:`evaluate` accept.
-
-    Args:
-        kind: the name specs use (``PolicySpec(kind, ...)``).
-        builder: ``"package.module:function"`` building a spec without a file: ``function(task, spec)``.
-        file_builder: the same for a spec whose ``path`` names a file (a saved network or model).
-        overwrite: replace a kind already registered (a built-in one included).
-
-    The registration lives in this process; :func:`evaluate` sends the builder's path to its workers, which import
-    the module by name, so a module-level function of an importable module is all a worker needs.
-
-    Raises:
-        ValueError: neither builder given, a path not of the form ``"module:function"``, or ``kind`` already
-            registered differently and not ``overwrite``.
-    """
-    if builder is None and file_builder is None:
-        raise ValueError(f"policy kind {kind!r} needs a builder, a file_builder or both")
-    for path in (builder, file_builder):
-        if path is not None:
-            _split_path(path)
-    new = PolicyKind(builder, file_builder)
-    with _KINDS_LOCK:
-        old = _KINDS.get(kind)
-        if old is not None and old != new and not overwrite:
-            raise ValueError(f"policy kind {kind!r} is already registered as {old}; pass overwrite=True to replace it")
-        _KINDS[kind] = new
-
-
-def policy_kinds() -> dict[str, PolicyKind]:
-    """Every policy kind this process knows (the built-in :data:`POLICY_KINDS` and those registered since)."""
-    with _KINDS_LOCK:
-        return dict(_KINDS)
-
-
-def builder_path(spec: PolicySpec) -> str:
-    """The ``"module:function"`` that builds ``spec``: its kind's ``file_builder`` when it names a file, else its
-    ``builder`` (a kind without a ``file_builder`` ignores the file)."""
-    kind = policy_kinds()[spec.kind]
-    path = kind.file_builder if spec.path is not None and kind.file_builder is not None else kind.builder
-    assert path is not None  # PolicySpec.__post_init__ checked that a kind without a builder got a file
-    return path
-
-
-def _split_path(path: str) -> tuple[str, str]:
-    module, sep, name = path.partition(":")
-    if not sep or not module or not name:
-        raise ValueError(f"a builder is named 'package.module:function', got {path!r}")
-    return module, name
-
-
-def _load_builder(path: str) -> Callable[[Task, PolicySpec], Any]:
-    """The function ``path`` names, imported by module path (how a worker process finds a builder)."""
-    module, name = _split_path(path)
-    builder: Callable[[Task, PolicySpec], Any] = getattr(importlib.import_module(module), name)
-    return builder
-
-
-@dataclass(frozen=True)
-class PolicySpec:
-    """A policy to evaluate, by description (built in the worker)."""
-
-    kind: str
-    """``"mpc"``, ``"full"``, ``"lqr"``, ``"sb3"``, ``"do-mpc"`` (the peer MPC tool, ``seagul[anchors]``) or a kind
-    added with :func:`register_policy_kind`."""
-    label: str = ""
-    """Name in tables and figures (default: the kind)."""
-    path: str | None = None
-    """Value network file (``"mpc"``) or SB3 model zip (``"sb3"``)."""
-    options: tuple[tuple[str, Any], ...] = ()
-    """Constructor options (e.g. ``(("horizon", 5), ("trust_region", "box"))``)."""
-    knows_robot: bool = False
-    """In an evaluation over robots (:func:`evaluate`'s ``robots``), build the policy for the episode's true robot
-    (``task.with_params(theta)``: e.g. the full-horizon MPC that knows the true parameters) instead of the model."""
-
-    def __post_init__(self) -> None:
-        kinds = policy_kinds()
-        if self.kind not in kinds:
-            raise ValueError(f"unknown policy kind {self.kind!r}; use one of {list(kinds)}")
-        kind = kinds[self.kind]
-        if kind.builder is None and not self.path:
-            raise ValueError(f"an {self.kind!r} policy needs the path of a saved model")
-        if self.path is not None and not Path(self.path).is_file():
-            raise FileNotFoundError(f"{self.kind} policy file {self.path!r} does not exist")
-
-    @property
-    def name(self) -> str:
-        """The label, or the kind when no label was given."""
-        return self.label or self.kind
-
-    def option_dict(self) -> dict[str, Any]:
-        """The options as a dict."""
-        return dict(self.options)
 
 
 @dataclass
@@ -248,157 +130,6 @@ class EpisodeResult:
     robot: list[float] = field(default_factory=list)
     """The simulated robot's parameters ``theta`` (``task.parameters.names`` order) in an evaluation over robots;
     empty when the episode ran on the model."""
-
-
-# ------------------------------------------------------------------------------------------------ starts
-def _grid_slice(task: Task) -> tuple[np.ndarray, tuple[int, int]]:
-    """The evaluation grid's slice of X0 (``task.profile.grid``): the state every grid start shares outside the
-    grid's two coordinates (X0's centre, or the profile's ``fixed`` values), and those two coordinates."""
-    grid = task.profile.grid
-    base = 0.5 * (np.asarray(task.x0_low, dtype=np.float64) + np.asarray(task.x0_high, dtype=np.float64))
-    for i, value in grid.fixed:
-        base[i] = value
-    return base, grid.resolved_coords(task)
-
-
-def start_grid(task: Task | str, n: int) -> tuple[np.ndarray, dict[str, Any]]:
-    """``n x n`` starts and a description of the grid's axes (``task.profile.grid``).
-
-    Two coordinates span X0, the others sit at X0's centre unless the profile fixes them. Acrobot: ``(th1, th2)``
-    over X0's angle box at zero velocity (Fig. 2). Glider: ``(x, z)`` over X0 with the other coordinates at the
-    centre of X0 (Fig. 4).
-    """
-    task = resolve_task(task)
-    if int(n) < 1:
-        raise ValueError(f"grid size must be >= 1, got {n}")
-    n = int(n)
-    centre, dims = _grid_slice(task)
-    axes = [np.linspace(task.x0_low[d], task.x0_high[d], n) if n > 1 else np.array([centre[d]]) for d in dims]
-    starts = []
-    for a in axes[0]:
-        for b in axes[1]:
-            x = centre.copy()
-            x[dims[0]], x[dims[1]] = a, b
-            starts.append(x)
-    info = {
-        "dims": [task.state_names[d] for d in dims],
-        "axes": [ax.tolist() for ax in axes],
-        "shape": [n, n],
-    }
-    return np.array(starts), info
-
-
-def sample_grid_slice(task: Task | str, n: int, rng: np.random.Generator) -> np.ndarray:
-    """``n`` starts drawn uniformly on the slice of X0 that :func:`start_grid` discretises: the grid's two
-    coordinates uniform over X0's range, every other one where the grid holds it (acrobot: at rest; glider: X0's
-    centre). Random draws from the grid's distribution, never its points."""
-    task = resolve_task(task)
-    base, dims = _grid_slice(task)
-    d = list(dims)
-    out = np.repeat(base[None, :], int(n), axis=0)
-    out[:, d] = rng.uniform(np.asarray(task.x0_low)[d], np.asarray(task.x0_high)[d], size=(int(n), 2))
-    return out
-
-
-#: Seed of the held-out starts every benchmark shares (never a training stream).
-HELDOUT_SEED = 20211231
-
-
-def heldout_starts(task: Task | str, n: int = 100) -> np.ndarray:
-    """``n`` starts drawn uniformly from X0 with :data:`HELDOUT_SEED` (the same for every controller and benchmark)."""
-    return resolve_task(task).sample_x0(np.random.default_rng(HELDOUT_SEED), n)
-
-
-# ------------------------------------------------------------------------------------------------ policies
-def build_lqr_policy(task: Task, spec: PolicySpec) -> LQRPolicy:
-    """``"lqr"``: :class:`~seagul_control.lqr.LQRPolicy` with the spec's options."""
-    return LQRPolicy(task, **spec.option_dict())
-
-
-def _split_options(options_class: Any, options: dict[str, Any]) -> tuple[Any, dict[str, Any]]:
-    """A spec's flat options as ``(options_class(...), keywords)``: the fields of the options object (solver,
-    terminal cost, ...) and the constructor's own keywords (``trust_region``, ``model_params``, ...)."""
-    names = {f.name for f in fields(options_class)}
-    return (
-        options_class(**{k: v for k, v in options.items() if k in names}),
-        {k: v for k, v in options.items() if k not in names},
-    )
-
-
-def build_full_horizon_policy(task: Task, spec: PolicySpec) -> FullHorizonMPC:
-    """``"full"``: :class:`~seagul_control.mpc.FullHorizonMPC` with the spec's options."""
-    options, keywords = _split_options(FullHorizonOptions, spec.option_dict())
-    return FullHorizonMPC(task, options, **keywords)
-
-
-def build_lookahead_policy(
-    task: Task, spec: PolicySpec, value_function: CasadiValueFunction | None = None
-) -> LimitedLookaheadMPC:
-    """``"mpc"``: :class:`~seagul_control.mpc.LimitedLookaheadMPC` with ``value_function`` as its terminal cost (None:
-    the task's own terminal cost) over the spec's ``horizon`` option (default :func:`default_horizon`).
-
-    The builder of the learned kind (``"mpc"`` with a value network file, :mod:`seagul_learn.policies`) loads the
-    network and calls this with it."""
-    flat = spec.option_dict()
-    horizon = int(flat.pop("horizon", default_horizon(task)))
-    options, keywords = _split_options(MPCOptions, flat)
-    return LimitedLookaheadMPC(task, value_function, horizon, options, **keywords)
-
-
-def build_do_mpc_policy(task: Task, spec: PolicySpec) -> DoMPCPolicy:
-    """``"do-mpc"``: :class:`~seagul_control.do_mpc_policy.DoMPCPolicy` (needs ``seagul[anchors]``) over the spec's
-    ``horizon`` option (default :func:`default_horizon`)."""
-    options = spec.option_dict()
-    return DoMPCPolicy(task, int(options.pop("horizon", default_horizon(task))), **options)
-
-
-_POLICIES: dict[tuple[str, PolicySpec], Any] = {}
-_TASKS: dict[str, Task] = {}  # fingerprint -> the one Task object this process uses for it
-
-
-def _canonical_task(task: Task | str) -> Task:
-    """One Task object per content in this process: a name's shared task, or the first copy of a fingerprint seen.
-
-    Workers receive a fresh unpickled copy with every chunk; mapping copies to one object keeps the per-task caches
-    (simulators, built policies) warm, and a copy of a registered task maps to its shared object (so the env is
-    exactly ``gym.make`` of its id).
-    """
-    if isinstance(task, str):
-        return make_task(task)
-    fp = task.fingerprint()
-    known = _TASKS.get(fp)
-    if known is None:
-        known = task
-        if task.name in available_tasks():
-            shared = make_task(task.name)
-            if shared.fingerprint() == fp:
-                known = shared
-        _TASKS[fp] = known
-    return known
-
-
-def build_policy(task: Task | str, spec: PolicySpec, builder: str | None = None) -> Any:
-    """The predictor described by ``spec`` for ``task`` (a Task or a registered name; cached per process and task
-    content: solvers are built once), built by ``builder`` (``"module:function"``; default :func:`builder_path`).
-
-    Every registered kind is built, the learned ones by importing :mod:`seagul_learn.policies` by path (which
-    re-exports this function as the one place that knows every kind)."""
-    task = _canonical_task(task)
-    key = (task.fingerprint(), spec)
-    if key not in _POLICIES:
-        _POLICIES[key] = _build(task, spec, builder)
-    return _POLICIES[key]
-
-
-def _build(task: Task, spec: PolicySpec, builder: str | None = None) -> Any:
-    """A new predictor described by ``spec`` for ``task`` (uncached)."""
-    return _load_builder(builder or builder_path(spec))(task, spec)
-
-
-def default_horizon(task: Task) -> int:
-    """The task's default MPC lookahead (``task.profile.default_horizon``). Paper §6: 5 steps (0.5 s) for the
-    acrobot; about 250 ms (10 control periods) for the glider and, by default, for a new task."""
-    return task.profile.default_horizon(task)
 
 
 def episode_env(task: Task, **kwargs: Any) -> Any:

@@ -11,12 +11,15 @@ import json
 import subprocess
 import sys
 import textwrap
+import warnings
 
 import gymnasium as gym
 import numpy as np
 import pytest
 
 import seagul_control.evaluation as ev
+import seagul_control.policy_kinds as policy_kinds
+import seagul_control.starts as starts_module
 import seagul_envs  # noqa: F401  (registers the envs)
 from seagul_control.evaluation import (
     EpisodeResult,
@@ -141,8 +144,8 @@ def test_each_kind_names_its_builder_by_module_path_and_the_learned_ones_live_in
     spec by :mod:`seagul_learn.policies`, whose ``build_policy`` is the same function that knows every kind."""
     net = tmp_path / "net.pt"
     net.write_bytes(b"")
-    assert ev.builder_path(PolicySpec("lqr")) == "seagul_control.evaluation:build_lqr_policy"
-    assert ev.builder_path(PolicySpec("mpc")) == "seagul_control.evaluation:build_lookahead_policy"
+    assert ev.builder_path(PolicySpec("lqr")) == "seagul_control.policy_kinds:build_lqr_policy"
+    assert ev.builder_path(PolicySpec("mpc")) == "seagul_control.policy_kinds:build_lookahead_policy"
     assert ev.builder_path(PolicySpec("mpc", path=str(net))) == "seagul_learn.policies:build_network_mpc_policy"
     assert ev.builder_path(PolicySpec("sb3", path=str(net))) == "seagul_learn.policies:build_sb3_policy"
     for kind in ev.POLICY_KINDS:
@@ -162,7 +165,8 @@ def test_a_kind_registered_at_run_time_is_built_in_the_worker_processes():
     with pytest.raises(ValueError, match="needs a builder"):
         ev.register_policy_kind("bad")
     with pytest.raises(ValueError, match="already registered"):
-        ev.register_policy_kind("lqr", "seagul_control.evaluation:build_full_horizon_policy")
+        ev.register_policy_kind("lqr", "seagul_control.policy_kinds:build_full_horizon_policy")
+    # The builders' old module path (seagul_control.evaluation re-exports them) still names them.
     ev.register_policy_kind("lqr-copy", "seagul_control.evaluation:build_lqr_policy")
     try:
         ev.register_policy_kind("lqr-copy", "seagul_control.evaluation:build_lqr_policy")  # the same again: no-op
@@ -176,7 +180,44 @@ def test_a_kind_registered_at_run_time_is_built_in_the_worker_processes():
             np.testing.assert_allclose(a.final_state, b.final_state, rtol=1e-9, atol=1e-12)
         np.testing.assert_array_equal(two[0].final_state, two[2].final_state)
     finally:
-        ev._KINDS.pop("lqr-copy", None)
+        policy_kinds._KINDS.pop("lqr-copy", None)
+
+
+def test_policy_kinds_and_starts_live_in_their_modules_and_still_import_from_evaluation():
+    """The registry and builders (:mod:`seagul_control.policy_kinds`) and the starts (:mod:`seagul_control.starts`)
+    are the same objects under their old names in ``seagul_control.evaluation``, without a warning; a kind registered
+    through either name is one registry."""
+    moved = {
+        policy_kinds: (
+            "POLICY_KINDS",
+            "PolicyKind",
+            "PolicySpec",
+            "build_policy",
+            "builder_path",
+            "default_horizon",
+            "policy_kinds",
+            "register_policy_kind",
+            "build_lqr_policy",
+            "build_full_horizon_policy",
+            "build_lookahead_policy",
+            "build_do_mpc_policy",
+        ),
+        starts_module: ("HELDOUT_SEED", "heldout_starts", "sample_grid_slice", "start_grid"),
+    }
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for module, names in moved.items():
+            for name in names:
+                assert getattr(ev, name) is getattr(module, name), name
+                assert name in module.__all__ and name in ev.__all__, name
+    assert ev._KINDS is policy_kinds._KINDS
+    ev.register_policy_kind("lqr-alias", "seagul_control.policy_kinds:build_lqr_policy")
+    try:
+        assert "lqr-alias" in policy_kinds.policy_kinds() and PolicySpec("lqr-alias").name == "lqr-alias"
+    finally:
+        policy_kinds._KINDS.pop("lqr-alias", None)
+    with pytest.raises(ValueError, match="unknown policy kind"):
+        PolicySpec("lqr-alias")
 
 
 def test_sb3_policy_moved_to_seagul_learn_policies_and_its_old_name_warns():
@@ -225,6 +266,7 @@ def test_running_episodes_imports_neither_matplotlib_nor_torch():
         import seagul_control.evaluation as ev
 
         assert "matplotlib" not in sys.modules and "torch" not in sys.modules, "on import"
+        assert "seagul_learn" not in sys.modules, "seagul_control never imports seagul_learn"
         assert "seagul_learn.report" not in sys.modules, "the new home is imported lazily"
         starts, _ = ev.start_grid(ev.make_task("acrobot"), 1)
         results = ev.evaluate("acrobot", [ev.PolicySpec("lqr")], starts, progress=False)
