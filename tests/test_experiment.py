@@ -13,6 +13,7 @@ import time
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 
 from seagul_learn.cli import main
@@ -205,6 +206,54 @@ def test_reproduce_refuses_to_overwrite_and_checks_resume_dir(smoke_run: tuple[P
     with pytest.raises(FileNotFoundError, match=r"no experiment\.json"):
         Experiment.resume(tmp_path)
     assert main(["reproduce", "glider", "--resume", str(out)]) == 2  # a run of another task
+
+
+def test_final_networks_are_scored_on_held_out_starts_too(smoke_run: tuple[Path, str]) -> None:
+    """Every final network also runs from the preset's held-out starts (the benchmark's fixed-seed draws): per-seed
+    ``heldout_success`` and its median ``heldout_success_rate`` beside the grid success, a column of the report."""
+    out, _ = smoke_run
+    summary = json.loads((out / "closed_loop" / "summary.json").read_text())
+    assert summary["heldout_starts"] == 2  # the smoke preset's
+    for method, stats in summary["methods"].items():
+        assert len(stats["heldout_success"]) == summary["seeds"]
+        assert all(s in (0.0, 0.5, 1.0) for s in stats["heldout_success"]), method  # 2 starts each
+        assert stats["heldout_success_rate"] == pytest.approx(float(np.median(stats["heldout_success"])))
+    from seagul_control.evaluation import heldout_starts
+
+    stored = json.loads((out / "closed_loop" / "episodes_heldout" / "seagul-mpc--seed-1-.json").read_text())
+    assert np.allclose([row["start"] for row in stored], heldout_starts("acrobot", 2))
+    assert "held-out success median" in (out / "report.md").read_text()
+
+
+def test_a_run_stored_without_held_out_episodes_resumes_with_only_those(smoke_run: tuple[Path, str]) -> None:
+    """A resumed run reuses every stored episode table and evaluates only what is missing: here the held-out
+    episodes of one network (as in a run stored before they existed), to the same summary."""
+    out, _ = smoke_run
+    held = out / "closed_loop" / "episodes_heldout" / "uniform-mpc--seed-0-.json"
+    grid = out / "closed_loop" / "episodes" / "uniform-mpc--seed-0-.json"
+    before = (out / "closed_loop" / "summary.json").read_text(), held.read_text(), grid.stat().st_mtime_ns
+    held.unlink()
+    assert main(["reproduce", "acrobot", "--resume", str(out), "--no-progress"]) == 0
+    assert held.read_text() == before[1] and grid.stat().st_mtime_ns == before[2]  # the grid episodes were reused
+    assert (out / "closed_loop" / "summary.json").read_text() == before[0]
+
+
+def test_evaluate_snapshot_runs_grid_and_held_out_starts() -> None:
+    from seagul_control.evaluation import PolicySpec, heldout_starts, start_grid
+    from seagul_envs import make_task
+    from seagul_learn.experiment import evaluate_snapshot, success_fields
+
+    task = make_task("acrobot")
+    starts, _ = start_grid(task, 2)
+    grid, held = evaluate_snapshot(task, PolicySpec("lqr", "LQR"), starts, 3)
+    assert len(grid) == len(starts) and len(held) == 3
+    assert np.allclose([e.start for e in grid], starts) and np.allclose(
+        [e.start for e in held], heldout_starts(task, 3)
+    )
+    row = success_fields(grid, held)
+    assert row["grid_success"] == [e.success for e in grid]
+    assert row["heldout_success_rate"] == pytest.approx(np.mean([e.success for e in held]))
+    assert math.isnan(success_fields(grid, [])["heldout_success_rate"])
 
 
 def test_resume_of_finished_run_changes_nothing(smoke_run: tuple[Path, str]) -> None:

@@ -51,7 +51,8 @@ they are complete, and the shipped controller's evaluation is read back from ``s
 
 The package: :mod:`~seagul_learn.experiment.config` (:class:`ExperimentConfig`, :class:`Preset`),
 :mod:`~seagul_learn.experiment.methods` (the named methods), :mod:`~seagul_learn.experiment.pipeline` (the stages),
-:mod:`~seagul_learn.experiment.runs` (training runs of methods x seeds),
+:mod:`~seagul_learn.experiment.runs` (training runs of methods x seeds and the closed-loop evaluation of their
+snapshots on grid and held-out starts),
 :mod:`~seagul_learn.experiment.shipped_stage` (the shipped controller's stage),
 :mod:`~seagul_learn.experiment.statistics` (the paired test, per-method statistics),
 :mod:`~seagul_learn.experiment.figures` (success vs solves), :mod:`~seagul_learn.experiment.sections` (the report's
@@ -105,7 +106,14 @@ from seagul_learn.experiment.methods import (
     recipe_fields,
 )
 from seagul_learn.experiment.pipeline import Experiment, LearnedPolicy, _tail_multiple
-from seagul_learn.experiment.runs import train_one, train_runs
+from seagul_learn.experiment.runs import (
+    deployment_options,
+    evaluate_snapshot,
+    network_spec,
+    success_fields,
+    train_one,
+    train_runs,
+)
 from seagul_learn.experiment.sections import (
     CLOSED_LOOP_COLUMNS,
     SHIPPED_COLUMNS,
@@ -171,6 +179,8 @@ __all__ = [
     "comparison_intro",
     "comparison_rows",
     "comparison_title",
+    "deployment_options",
+    "evaluate_snapshot",
     "experiment_sections",
     "final_metric",
     "learning_headline",
@@ -179,6 +189,7 @@ __all__ = [
     "method_overrides",
     "method_rows",
     "method_statistics",
+    "network_spec",
     "paired_comparison",
     "paired_rows",
     "paired_success_comparison",
@@ -194,6 +205,7 @@ __all__ = [
     "shipped_network",
     "shipped_section",
     "success_curve",
+    "success_fields",
     "task_preset",
     "train_one",
     "train_runs",

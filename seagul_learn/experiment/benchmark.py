@@ -1,20 +1,21 @@
-"""The closed-loop benchmark's pipeline (``benchmarks/bench_closed_loop.py`` is its command line): closed-loop
-success per solve, i.e. which way of spending NLP solves gives a learned MPC that controls, and the shipped network
-with its block of ``benchmarks/results/closed_loop.json`` (read back by :mod:`seagul_learn.shipped`).
+"""The closed-loop benchmark's pipeline (``benchmarks/bench_closed_loop.py`` is its command line): closed-loop success
+per solve, i.e. which way of spending NLP solves gives a learned MPC that controls, and the shipped network with its
+block of ``benchmarks/results/closed_loop.json`` (read back by :mod:`seagul_learn.shipped`).
 
-For every learning method (names of :data:`~seagul_learn.experiment.methods.METHODS`, the same table as
-``seagul reproduce``'s) and every seed, one training run to the largest budget saves a network snapshot at each
-budget (``TrainConfig.snapshots``; a run's first ``b`` solves are exactly a budget-``b`` run's), trained by the
-experiment pipeline's :func:`~seagul_learn.experiment.runs.train_runs`. Every snapshot then drives the deployed
-controller (``LimitedLookaheadMPC(task, network, horizon, trust_region=...)``, :func:`mpc_options`) in closed loop in
-the task's Gymnasium env from the task's evaluation grid and from held-out starts drawn uniformly from X0 with their
-own seed, never trained on, next to the full-horizon MPC on the same starts (:func:`evaluate_network`,
-:func:`full_horizon`). :func:`summarize` reports per method and budget: success (median and 25-75 % band over
-seeds, every seed listed), the validation MSEs, the cumulative NLP solve time of the budget, the planner-query error
-``|Vhat - V|`` at a sample of the MPC's planned terminal states, and the paired test of each method against the
-shipped one, seed by seed (:func:`~seagul_learn.experiment.statistics.paired_test`, the library's one paired test
-with the benchmark's keys). :func:`shipped_block` holds the contract's fields of the shipped method;
-:func:`aggregate_task` rebuilds a task's block from stored per-seed evaluations.
+For every learning method (names of :data:`~seagul_learn.experiment.methods.METHODS`, the same table as ``seagul
+reproduce``'s) and every seed, one training run to the largest budget saves a network snapshot at each budget
+(``TrainConfig.snapshots``; a run's first ``b`` solves are exactly a budget-``b`` run's), trained by the experiment
+pipeline's :func:`~seagul_learn.experiment.runs.train_runs`. Every snapshot then drives the deployed controller
+(``LimitedLookaheadMPC(task, network, horizon, trust_region=...)``, :func:`mpc_options`) in closed loop in the task's
+Gymnasium env from the task's evaluation grid and from held-out starts drawn uniformly from X0 with their own seed,
+never trained on, next to the full-horizon MPC on the same starts (:func:`evaluate_network`, :func:`full_horizon`, both
+through :func:`~seagul_learn.experiment.runs.evaluate_snapshot`, the evaluation ``seagul reproduce`` runs its final
+networks with). :func:`summarize` reports per method and budget: success (median and 25-75 % band over seeds, every seed
+listed), the validation MSEs, the cumulative NLP solve time of the budget, the planner-query error ``|Vhat - V|`` at a
+sample of the MPC's planned terminal states, and the paired test of each method against the shipped one, seed by seed
+(:func:`~seagul_learn.experiment.statistics.paired_test`, the library's one paired test with the benchmark's keys).
+:func:`shipped_block` holds the contract's fields of the shipped method; :func:`aggregate_task` rebuilds a task's block
+from stored per-seed evaluations.
 
 The methods, shared settings and budgets are :mod:`seagul_learn.experiment.methods`' (:data:`FULL_TRAIN`,
 :data:`TASK_TRAIN`, :data:`TASK_SHIPPED`, :data:`TASK_BUDGETS`), so :class:`BenchConfig` here and ``seagul reproduce
@@ -50,7 +51,14 @@ from seagul_learn.experiment.methods import (
     shipped_name,
     train_config,
 )
-from seagul_learn.experiment.runs import train_one, train_runs
+from seagul_learn.experiment.runs import (
+    deployment_options,
+    evaluate_snapshot,
+    network_spec,
+    success_fields,
+    train_one,
+    train_runs,
+)
 from seagul_learn.experiment.statistics import paired_test
 from seagul_learn.shipped import REPO_ROOT
 
@@ -237,13 +245,9 @@ def budget_stats(run: Path, budget: int, pretrain: int) -> dict[str, float]:
 
 # ---------------------------------------------------------------------------------------------- evaluation
 def mpc_options(bench: BenchConfig) -> tuple[tuple[str, Any], ...]:
-    """Constructor options of the deployed ``LimitedLookaheadMPC`` (compiled if ``bench.jit``)."""
-    options: tuple[tuple[str, Any], ...] = (
-        ("horizon", bench.horizon),
-        ("trust_region", bench.trust_region),
-        ("jit", bench.jit),
-    )
-    return options + ((("goal_blend", bench.goal_blend),) if bench.goal_blend > 0 else ())
+    """Constructor options of the deployed ``LimitedLookaheadMPC`` (compiled if ``bench.jit``;
+    :func:`~seagul_learn.experiment.runs.deployment_options`)."""
+    return deployment_options(bench.horizon, bench.trust_region, bench.goal_blend, jit=bench.jit)
 
 
 def evaluate_network(
@@ -256,17 +260,15 @@ def evaluate_network(
     from seagul_learn.solving import trajopt_batch_solver
     from seagul_learn.value_network import ValueNetwork
 
-    spec = PolicySpec("mpc", "mpc", str(path), mpc_options(bench))
-    results = evaluate(bench.task, [spec], starts, workers=workers, progress=False, record_queries=True)
-    grid, held = results[:n_grid], results[n_grid:]
+    spec = network_spec("mpc", path, mpc_options(bench))
+    grid, held = evaluate_snapshot(bench.task, spec, starts[:n_grid], starts[n_grid:], workers, record_queries=True)
+    results = grid + held
     queries = np.array([q for r in results for q in r.queries]).reshape(-1, make_task(bench.task).nx + 1)
     solver = trajopt_batch_solver(bench.task, workers=workers)
     qe = query_errors(make_task(bench.task), ValueNetwork.load(path), queries, solver, query_sample)
     times = np.array([t for r in results for t in r.solve_times])
     row = {
-        "success_rate": float(np.mean([r.success for r in grid])),
-        "heldout_success_rate": float(np.mean([r.success for r in held])) if held else float("nan"),
-        "grid_success": [bool(r.success) for r in grid],
+        **success_fields(grid, held),
         "fallback_steps": int(sum(r.fallbacks for r in results)),
         "multistart_steps": int(sum(r.multistart_steps for r in results)),
         "steps": int(sum(r.steps for r in results)),
@@ -283,13 +285,8 @@ def full_horizon(bench: BenchConfig, starts: np.ndarray, n_grid: int, workers: i
     """The full-horizon MPC on the same starts (the upper reference; cached)."""
     if out.is_file():
         return json.loads(out.read_text())
-    results = evaluate(bench.task, [PolicySpec("full", "full-horizon")], starts, workers=workers, progress=False)
-    grid, held = results[:n_grid], results[n_grid:]
-    row = {
-        "success_rate": float(np.mean([r.success for r in grid])),
-        "heldout_success_rate": float(np.mean([r.success for r in held])) if held else float("nan"),
-        "grid_success": [bool(r.success) for r in grid],
-    }
+    spec = PolicySpec("full", "full-horizon")
+    row = success_fields(*evaluate_snapshot(bench.task, spec, starts[:n_grid], starts[n_grid:], workers))
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps(row, indent=1))
     return row
@@ -297,7 +294,7 @@ def full_horizon(bench: BenchConfig, starts: np.ndarray, n_grid: int, workers: i
 
 def timed_steps(bench: BenchConfig, path: Path, starts: np.ndarray) -> dict[str, float]:
     """MPC solver step times of the shipped network in one process (no parallel episodes sharing the cores)."""
-    spec = PolicySpec("mpc", "timed", str(path), mpc_options(bench))
+    spec = network_spec("timed", path, mpc_options(bench))
     results = evaluate(bench.task, [spec], starts, workers=1, progress=False)
     times = np.array([t for r in results for t in r.solve_times]) * 1e3
     return {

@@ -25,7 +25,9 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass, fields, replace
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
+
+import tyro
 
 from seagul_envs import Task, make_task, resolve_task
 from seagul_envs.tasks import task_label
@@ -123,6 +125,10 @@ class Preset:
     train_overrides: tuple[tuple[str, Any], ...] = ()
     """TrainConfig overrides of this preset: ``("field", value)`` for every method, ``("method:field", value)`` for
     one (a per-method entry wins over :data:`METHODS`; an every-method entry may not collide with it)."""
+    heldout_starts: int = 0
+    """Held-out starts every final network also runs from (:func:`seagul_control.evaluation.heldout_starts`: uniform
+    draws from X0 with one fixed seed, the closed-loop benchmark's), reported as ``heldout_success_rate`` beside the
+    grid success; 0: none."""
     query_samples: int = 20
     """Planner queries re-solved per (method, seed) for the planner-query error."""
     query_tail_stride: int = 1
@@ -144,6 +150,8 @@ class Preset:
                 raise ValueError(f"preset {name} must be >= 1, got {getattr(self, name)}")
         if self.train_steps_per_round < 0:
             raise ValueError(f"preset train_steps_per_round must be >= 0, got {self.train_steps_per_round}")
+        if self.heldout_starts < 0:
+            raise ValueError(f"preset heldout_starts must be >= 0, got {self.heldout_starts}")
         if self.query_samples < 1:
             raise ValueError(f"preset query_samples must be >= 1, got {self.query_samples}")
         if self.query_tail_stride < 1:
@@ -220,11 +228,12 @@ def builtin_presets() -> dict[str, dict[str, Preset]]:
 
 @dataclass
 class ExperimentConfig:
-    """One ``seagul reproduce`` run."""
+    """One ``seagul reproduce`` run: each field is a ``seagul reproduce`` flag (derived by tyro, helped by the
+    field's docstring; :mod:`seagul_learn.commands.reproduce`), the task its positional argument."""
 
-    task: str | Task = "acrobot"
+    task: Annotated[str | Task, tyro.conf.Suppress] = "acrobot"
     """A registered task name or a Task object (``seagul reproduce module:factory``); ``experiment.json`` stores its
-    name and fingerprint."""
+    name and fingerprint. (The command line's positional ``TASK``, not a flag.)"""
     preset: str = "quick"
     """``"quick"``, ``"paper"`` or ``"smoke"``: one of the task's presets (``seagul_learn/recipes/<task>.yml``,
     :func:`task_preset`)."""

@@ -36,7 +36,7 @@ from seagul_learn.experiment.config import (
 )
 from seagul_learn.experiment.figures import plot_success_vs_solves
 from seagul_learn.experiment.methods import SHIPPED_METHOD, shipped_recipe, train_config, train_field_names
-from seagul_learn.experiment.runs import train_runs
+from seagul_learn.experiment.runs import deployment_options, evaluate_snapshot, network_spec, train_runs
 from seagul_learn.experiment.sections import experiment_sections
 from seagul_learn.experiment.statistics import (
     method_statistics,
@@ -245,12 +245,11 @@ class Experiment:
         shipped recipe's, and the task's default guard ("none" for the built-ins) is measured on the recipe's
         networks.
         """
-        horizon = ("horizon", self.preset.mpc_horizon)
+        horizon = self.preset.mpc_horizon
         if SHIPPED_METHOD in self.preset.methods:
-            blend = float(self.task.profile.mpc_goal_blend)
-            guard = ("trust_region", self.task.profile.mpc_trust_region)
-            return (horizon, guard, *((("goal_blend", blend),) if blend > 0 else ()))
-        return (horizon, ("solver", "ipopt"), ("trust_region", "lqr"))
+            profile = self.task.profile
+            return deployment_options(horizon, profile.mpc_trust_region, float(profile.mpc_goal_blend))
+        return deployment_options(horizon, "lqr", solver="ipopt")
 
     def train_jobs(self) -> list[tuple[str, Any]]:
         """``(method, TrainConfig)`` of every run, by seed then method."""
@@ -363,9 +362,8 @@ class Experiment:
 
     # --------------------------------------------------------------------------------------------- closed loop
     def learned_policies(self) -> list[LearnedPolicy]:
-        """Every snapshot network of every (method, seed) run as a limited-lookahead MPC, by method, seed, budget."""
-        from seagul_control.evaluation import PolicySpec
-
+        """Every snapshot network of every (method, seed) run as a limited-lookahead MPC, by method, seed, budget
+        (:func:`~seagul_learn.experiment.runs.network_spec`, deployed as :meth:`deployment` says)."""
         p = self.preset
         horizon = self.deployment()
         out = []
@@ -375,7 +373,7 @@ class Experiment:
                     final = budget == p.budget
                     label = policy_label(method, seed, None if final else budget)
                     path = str(self.network_path(method, seed, budget))
-                    out.append(LearnedPolicy(method, seed, budget, final, PolicySpec("mpc", label, path, horizon)))
+                    out.append(LearnedPolicy(method, seed, budget, final, network_spec(label, path, horizon)))
         return out
 
     def baseline_specs(self) -> tuple[list[Any], list[Any]]:
@@ -421,6 +419,42 @@ class Experiment:
         atomic_write_text(path, json.dumps([asdict(r) for r in results], allow_nan=True))
         return results
 
+    def _snapshot_episodes(
+        self, policy: LearnedPolicy, starts: np.ndarray, record: bool
+    ) -> tuple[list[Any], list[Any]]:
+        """``(grid episodes, held-out episodes)`` of one snapshot network: the grid ``starts`` and, for a final
+        network, the preset's ``heldout_starts`` held-out starts, through
+        :func:`~seagul_learn.experiment.runs.evaluate_snapshot` (the closed-loop benchmark's evaluation). Each set is
+        stored as its own table (``closed_loop/episodes/<slug>.json``, ``closed_loop/episodes_heldout/<slug>.json``)
+        and read back by a resumed run, which evaluates only what is missing (e.g. the held-out starts of a run
+        stored before they existed). A final network records its planner queries (:meth:`_query_error`)."""
+        from seagul_control.evaluation import EpisodeResult
+
+        n_held = self.preset.heldout_starts if policy.final else 0
+        name = f"{_slug(policy.spec.name)}.json"
+        paths = (self.out / "closed_loop" / "episodes" / name, self.out / "closed_loop" / "episodes_heldout" / name)
+        stored = [[EpisodeResult(**row) for row in json.loads(p.read_text())] if p.is_file() else None for p in paths]
+        if n_held == 0:
+            stored[1] = []
+        if stored[0] is not None and stored[1] is not None:
+            return stored[0], stored[1]
+        grid, held = evaluate_snapshot(
+            self.task,
+            policy.spec,
+            starts if stored[0] is None else starts[:0],
+            n_held if stored[1] is None else np.empty((0, self.task.nx)),
+            self.config.workers,
+            self.config.progress,
+            record,
+            record_queries=policy.final,
+        )
+        for k, new in enumerate((grid, held)):
+            if stored[k] is None:
+                paths[k].parent.mkdir(parents=True, exist_ok=True)
+                atomic_write_text(paths[k], json.dumps([asdict(r) for r in new], allow_nan=True))
+                stored[k] = new
+        return stored[0] or [], stored[1] or []
+
     def _query_error(self, policy: LearnedPolicy, episodes: Sequence[Any]) -> dict[str, Any]:
         """The planner-query error of a final network over its grid episodes' queries (stored when computed)."""
         path = self.out / "closed_loop" / "query_errors" / f"{policy.method}-seed{policy.seed}.json"
@@ -450,7 +484,8 @@ class Experiment:
         """Closed-loop runs of every network and baseline over the start grids, the per-method statistics, figures.
 
         Writes ``closed_loop/summary.json`` (``policies``: one row per policy and grid; ``methods``: see
-        :func:`method_statistics`; the grids and budgets) and ``success_vs_solves.png``.
+        :func:`method_statistics`, with each final network's held-out success; the grids, budgets and the number of
+        held-out starts) and ``success_vs_solves.png``.
         """
         from seagul_control.evaluation import start_grid
         from seagul_learn.report import summarize
@@ -463,9 +498,12 @@ class Experiment:
         learned = self.learned_policies()
         finals = [lp for lp in learned if lp.final]
         episodes: dict[str, list[Any]] = {}
+        heldout: dict[tuple[str, int], list[Any]] = {}
         for lp in learned:
             record = paths_shown and lp.final and lp.seed == 0
-            episodes[lp.spec.name] = self._episodes(lp.spec, starts, record, record_queries=lp.final)
+            episodes[lp.spec.name], held = self._snapshot_episodes(lp, starts, record)
+            if lp.final:
+                heldout[(lp.method, lp.seed)] = held
         errors = {(lp.method, lp.seed): self._query_error(lp, episodes[lp.spec.name]) for lp in finals}
         main_specs, reference_specs = self.baseline_specs()
         base_results = [r for spec in main_specs for r in self._episodes(spec, starts, paths_shown)]
@@ -493,6 +531,7 @@ class Experiment:
                 [errors[(m, s)] for s in range(p.seeds)],
                 p.seeds,
                 p.budgets,
+                {s: success_rate(heldout[(m, s)]) for s in range(p.seeds)} if p.heldout_starts else None,
             )
             for m in p.methods
         }
@@ -515,6 +554,7 @@ class Experiment:
             "seeds": p.seeds,
             "grid": grid,
             "reference_grid": ref_grid,
+            "heldout_starts": p.heldout_starts,
             "policies": rows,
         }
         atomic_write_text(self.out / "closed_loop" / "summary.json", json.dumps(summary, indent=2, allow_nan=True))

@@ -1,8 +1,17 @@
-"""Training runs of methods x seeds, shared by ``seagul reproduce``
+"""Training runs of methods x seeds and the closed-loop evaluation of their snapshots, shared by ``seagul reproduce``
 (:class:`~seagul_learn.experiment.pipeline.Experiment`) and the closed-loop benchmark
-(:mod:`seagul_learn.experiment.benchmark`): each run trains one
-:class:`~seagul_learn.training.TrainConfig` into its directory, resumes from its checkpoint after an interruption and
-is skipped once finished; the runs go one after the other or in parallel processes.
+(:mod:`seagul_learn.experiment.benchmark`).
+
+Training: each run trains one :class:`~seagul_learn.training.TrainConfig` into its directory, resumes from its
+checkpoint after an interruption and is skipped once finished; the runs go one after the other or in parallel
+processes (:func:`train_runs`).
+
+Evaluation: a snapshot network is deployed as a limited-lookahead MPC (:func:`deployment_options`,
+:func:`network_spec`) and run from the start grid and from the held-out starts
+(:func:`seagul_control.evaluation.heldout_starts`, one fixed seed for every controller) in one call
+(:func:`evaluate_snapshot`); :func:`success_fields` turns the two lists of episodes into the ``success_rate``,
+``heldout_success_rate`` and ``grid_success`` both report. The grid measures coverage of X0 at a known resolution;
+the held-out starts are uniform draws no training stream saw, the check that a grid success is not the grid's.
 """
 
 from __future__ import annotations
@@ -11,6 +20,8 @@ import os
 from collections.abc import Sequence
 from pathlib import Path
 from typing import Any
+
+import numpy as np
 
 
 def train_one(config: Any, out: str | Path, cache: Path | None = None, workers: int = 1, backend: str = "local") -> str:
@@ -71,3 +82,74 @@ def train_runs(
         for _ in Parallel(n_jobs=workers, return_as="generator_unordered")(pending):
             bar.update(1)
     bar.close()
+
+
+# ---------------------------------------------------------------------------------------------- evaluation
+def deployment_options(
+    horizon: int,
+    trust_region: str,
+    goal_blend: float = 0.0,
+    solver: str | None = None,
+    jit: bool | None = None,
+) -> tuple[tuple[str, Any], ...]:
+    """Constructor options of a deployed :class:`~seagul_control.mpc.LimitedLookaheadMPC`: ``horizon`` lookahead
+    steps, the ``trust_region`` guard, then, only when given, the NLP ``solver`` (``"ipopt"``), ``jit`` (compile the
+    MPC) and ``goal_blend`` (0 = off, left out)."""
+    options: list[tuple[str, Any]] = [("horizon", int(horizon))]
+    if solver is not None:
+        options.append(("solver", solver))
+    options.append(("trust_region", trust_region))
+    if jit is not None:
+        options.append(("jit", bool(jit)))
+    if goal_blend > 0:
+        options.append(("goal_blend", float(goal_blend)))
+    return tuple(options)
+
+
+def network_spec(label: str, path: str | Path, options: tuple[tuple[str, Any], ...]) -> Any:
+    """The :class:`~seagul_control.evaluation.PolicySpec` of a snapshot network ``path`` deployed with ``options``
+    (:func:`deployment_options`), named ``label`` in tables."""
+    from seagul_control.evaluation import PolicySpec
+
+    return PolicySpec("mpc", label, str(path), options)
+
+
+def evaluate_snapshot(
+    task: Any,
+    spec: Any,
+    grid_starts: np.ndarray,
+    heldout: int | np.ndarray,
+    workers: int = 1,
+    progress: bool = False,
+    record: bool = False,
+    record_queries: bool = False,
+) -> tuple[list[Any], list[Any]]:
+    """``(grid episodes, held-out episodes)`` of one policy ``spec`` (a snapshot network's :func:`network_spec`, or
+    any :class:`~seagul_control.evaluation.PolicySpec`) from ``grid_starts`` and from the held-out starts.
+
+    ``heldout``: their number, drawn by :func:`seagul_control.evaluation.heldout_starts` (the same starts for
+    every controller, run and benchmark), or the start rows themselves. Both sets run in one
+    :func:`~seagul_control.evaluation.evaluate` call, so the episodes share the worker processes (and a compiled
+    MPC); ``record``/``record_queries`` as there.
+    """
+    from seagul_control.evaluation import evaluate, heldout_starts
+
+    held = heldout_starts(task, heldout) if isinstance(heldout, int | np.integer) else np.asarray(heldout)
+    grid = np.asarray(grid_starts, dtype=np.float64)
+    nx = held.shape[1] if held.ndim == 2 and held.size else grid.shape[-1]
+    starts = np.vstack([grid.reshape(-1, nx), held.reshape(-1, nx)])
+    if len(starts) == 0:
+        return [], []
+    results = evaluate(task, [spec], starts, workers, progress, record, record_queries=record_queries)
+    n_grid = len(grid.reshape(-1, nx))
+    return list(results[:n_grid]), list(results[n_grid:])
+
+
+def success_fields(grid: Sequence[Any], heldout: Sequence[Any]) -> dict[str, Any]:
+    """``success_rate`` (grid), ``heldout_success_rate`` (NaN without held-out episodes) and ``grid_success`` (one
+    bool per grid start, in grid order) of :func:`evaluate_snapshot`'s episodes."""
+    return {
+        "success_rate": float(np.mean([r.success for r in grid])) if grid else float("nan"),
+        "heldout_success_rate": float(np.mean([r.success for r in heldout])) if heldout else float("nan"),
+        "grid_success": [bool(r.success) for r in grid],
+    }

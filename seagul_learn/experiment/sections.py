@@ -232,7 +232,8 @@ def closed_loop_headline(
 
 
 def method_rows(methods: Mapping[str, Mapping[str, Any]], learning: Mapping[str, Any]) -> list[list[Any]]:
-    """Report rows: method, success median, q25-q75, per seed, query error median and p95, validation MSE median."""
+    """Report rows: method, grid success median, q25-q75, per seed, held-out success median (n/a in a run without
+    held-out starts), query error median and p95, validation MSE median."""
     rows = []
     for m, s in methods.items():
         rows.append(
@@ -241,6 +242,7 @@ def method_rows(methods: Mapping[str, Mapping[str, Any]], learning: Mapping[str,
                 pct(s["success_median"]),
                 f"{pct(s['success_q25'])}-{pct(s['success_q75'])}",
                 ", ".join(pct(v) for v in s["success"]),
+                pct(s.get("heldout_success_rate", math.nan)),
                 float(s["query_error"]["median"]),
                 float(s["query_error"]["p95"]),
                 float(np.median(learning["mse_all_knots"][m])),
@@ -376,7 +378,10 @@ def experiment_sections(
                 + " and the full-horizon MPC (on a coarser reference grid: it solves the whole problem at every "
                 "step; every final network runs there too). Success: fraction of grid starts "
                 f"({experiment.task.profile.describe_success(experiment.task)}) at "
-                f"{p.budget} solves per network, median and quartiles over {p.seeds} seeds. Query error: "
+                f"{p.budget} solves per network, median and quartiles over {p.seeds} seeds. Held-out success: "
+                f"fraction of {p.heldout_starts} starts drawn uniformly from X0 with the closed-loop benchmark's "
+                "fixed seed (no training stream draws with it), of each final network (median over seeds). "
+                "Query error: "
                 f"`|Vhat - V|` at {p.query_samples} of the final MPC's planned terminal states per seed, "
                 "re-solved as tail problems (median and p95 per seed, then the median over seeds).",
                 f"Paired tests against the {method_label(reference or REFERENCE_METHOD)} method: per-seed "
@@ -390,6 +395,7 @@ def experiment_sections(
                         "success median",
                         "q25-q75",
                         "per seed",
+                        "held-out success median",
                         "query error median",
                         "query error p95",
                         "validation mse_all_knots median",

@@ -121,6 +121,7 @@ def method_statistics(
     query_errors: Sequence[Mapping[str, Any]],
     seeds: int,
     budgets: Sequence[int],
+    heldout_success: Mapping[int, float] | None = None,
 ) -> dict[str, Any]:
     """One method's closed-loop statistics over seeds (an entry of ``closed_loop/summary.json``'s ``methods``).
 
@@ -130,8 +131,11 @@ def method_statistics(
     budget), ``success_median``/``success_q25``/``success_q75``/``success_min``/``success_max``,
     ``reference_success`` (per seed), ``curve`` (``budgets``, ``median``, ``q25``, ``q75``, ``per_seed``
     ``[seed][budget]``) and ``query_error`` (``median`` and ``p95``: medians over seeds of the per-seed values;
-    ``per_seed``).
+    ``per_seed``). ``heldout_success`` maps a seed to its final network's success rate from the held-out starts
+    (:func:`~seagul_learn.experiment.runs.evaluate_snapshot`): keys ``heldout_success`` (per seed) and
+    ``heldout_success_rate`` (their median; NaN when the run has no held-out starts).
     """
+    held = [float(heldout_success[s]) for s in range(seeds)] if heldout_success else [math.nan] * seeds
     per_seed = np.array([[success[(s, b)] for b in budgets] for s in range(seeds)], dtype=float)
     final = per_seed[:, -1]
     q25, q75 = np.percentile(final, [25, 75])
@@ -146,6 +150,8 @@ def method_statistics(
         "success_min": float(np.min(final)),
         "success_max": float(np.max(final)),
         "reference_success": [float(reference_success[s]) for s in range(seeds)],
+        "heldout_success": held,
+        "heldout_success_rate": nanmedian(held),
         "curve": {
             "budgets": [int(b) for b in budgets],
             "median": np.median(per_seed, axis=0).tolist(),
