@@ -16,40 +16,56 @@ For NLPs the same network is available as a CasADi expression (:meth:`casadi_fun
 accepts any newly trained network of the same shape (it implements
 :class:`seagul_control.value_function.CasadiValueFunction`).
 
-File format (``save``/``load``): one ``torch.save`` file holding a plain dict
-``{"format": "seagul-value-network", "version": 1, "task_name", "task_fingerprint", "config": {"nx", "hidden"},
-"state_dict"}`` (tensors and builtins only, so it loads with ``weights_only=True``). ``task_fingerprint`` is the
-trained task's :meth:`~seagul_envs.tasks.base.Task.fingerprint` (``""`` when unknown; files written before it existed
-lack the key and load with ``""``): an MPC refuses a network whose fingerprint is not its task's, so a network
-trained on one variant of a task is never used on a same-named other one.
+``save``/``load`` read and write the file format of :mod:`seagul_learn.value_files` (one ``torch.save`` dict that
+loads with ``weights_only=True``, tagged with the trained task's fingerprint). The CasADi graphs are built by
+:mod:`seagul_learn.value_casadi`, the ensemble of networks is :class:`seagul_learn.ensemble.ValueEnsemble`; their
+names used to live here and still import from here (``ValueEnsemble``, ``ValueModel``, ``ValueNetworkFileError``,
+``FORMAT_TAG``, ``ENSEMBLE_FORMAT_TAG``, ``FORMAT_VERSION``, ``CasadiForm``: the same objects, no warning).
 """
 
 from __future__ import annotations
 
-import io
 import itertools
 import os
 from collections.abc import Callable, Sequence
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Literal, TypeAlias, cast
+from typing import TYPE_CHECKING, Any, TypeAlias, cast
 
 import casadi as ca
 import numpy as np
 import torch
 from torch import nn
 
-from seagul_control.io import atomic_write_bytes
+from seagul_learn.value_casadi import CasadiForm, casadi_network, check_form, num_parameters
+from seagul_learn.value_files import (
+    ENSEMBLE_FORMAT_TAG,
+    FORMAT_TAG,
+    FORMAT_VERSION,
+    ValueNetworkFileError,
+    check_version,
+    read_value_file,
+    write_value_file,
+)
 
-FORMAT_TAG = "seagul-value-network"
-ENSEMBLE_FORMAT_TAG = "seagul-value-ensemble"
-FORMAT_VERSION = 1
+if TYPE_CHECKING:
+    from seagul_learn.ensemble import ValueEnsemble, ValueModel
+
+__all__ = [
+    "DTYPE",
+    "ENSEMBLE_FORMAT_TAG",
+    "FORMAT_TAG",
+    "FORMAT_VERSION",
+    "CasadiForm",
+    "ValueEnsemble",
+    "ValueModel",
+    "ValueNetwork",
+    "ValueNetworkConfig",
+    "ValueNetworkFileError",
+]
+
 DTYPE = torch.float64
 _MIN_STD = 1e-8
-
-
-class ValueNetworkFileError(ValueError):
-    """A network file is missing, unreadable, corrupt or not a seagul value network."""
 
 
 @dataclass(frozen=True)
@@ -65,8 +81,6 @@ class ValueNetworkConfig:
 
 
 _Forward: TypeAlias = Callable[..., torch.Tensor]
-CasadiForm: TypeAlias = Literal["scalar", "matrix", "taylor", "taylor_model"]
-"""How a value function's CasADi graph is built: ``"scalar"`` (SX) or ``"matrix"`` (MX of dense products)."""
 
 
 def _predict(forward: _Forward, x: Any, tau: Any, theta: Any = None) -> np.ndarray:
@@ -323,7 +337,7 @@ class ValueNetwork(nn.Module):
     @property
     def num_casadi_parameters(self) -> int:
         """Length of ``theta``."""
-        return _num_parameters(self.nx, self.config.hidden, self.n_params)
+        return num_parameters(self.nx, self.config.hidden, self.n_params)
 
     def casadi_function(self, form: CasadiForm = "scalar") -> ca.Function:
         """CasADi ``(x[nx], tau[1], theta[n]) -> V[1]``; depends only on the architecture, not on the weights.
@@ -341,7 +355,7 @@ class ValueNetwork(nn.Module):
         ``d2V/dx2 = sum_l A_l' diag(delta_l * tanh''(a_l)) A_l``), and ``form="taylor_model"`` is
         ``(x, x0, c) -> V0 + g (x - x0) + 1/2 (x - x0)' H (x - x0)``: together equal to ``V`` to second order in
         ``x`` at ``x = x0``."""
-        return _casadi_network(self.nx, self.config.hidden, _check_form(form), self.n_params)
+        return casadi_network(self.nx, self.config.hidden, check_form(form), self.n_params)
 
     def to_casadi(self) -> ca.Function:
         """CasADi ``(x[nx], tau[1]) -> V[1]`` with the current weights embedded as constants."""
@@ -354,28 +368,23 @@ class ValueNetwork(nn.Module):
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the network to ``path`` atomically (temp file + rename); returns the path."""
         config = {"nx": self.config.nx, "hidden": list(self.config.hidden), "n_params": self.n_params}
-        return _write_file(path, FORMAT_TAG, self.task_name, config, self, self.task_fingerprint)
+        return write_value_file(path, FORMAT_TAG, self.task_name, config, self, self.task_fingerprint)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> ValueNetwork:
-        """Read a file written by :meth:`save` (or :meth:`ValueEnsemble.save`, which returns the ensemble); raises
-        :class:`ValueNetworkFileError` naming the file and problem."""
+        """Read a file written by :meth:`save` (or :meth:`ValueEnsemble.save
+        <seagul_learn.ensemble.ValueEnsemble.save>`, which returns the ensemble); raises
+        :class:`~seagul_learn.value_files.ValueNetworkFileError` naming the file and problem."""
         path = Path(path)
-        if path.is_dir():
-            raise ValueNetworkFileError(f"{str(path)!r} is a directory, not a value network file")
-        if not path.is_file():
-            raise ValueNetworkFileError(f"value network file {str(path)!r} does not exist")
-        try:
-            payload = torch.load(path, map_location="cpu", weights_only=True)
-        except Exception as exc:
-            raise ValueNetworkFileError(
-                f"value network file {str(path)!r} is unreadable or corrupt ({type(exc).__name__}: {exc})"
-            ) from exc
-        if isinstance(payload, dict) and payload.get("format") == ENSEMBLE_FORMAT_TAG:
+        payload = read_value_file(path)
+        if payload.get("format") == ENSEMBLE_FORMAT_TAG:
+            # Imported here: the ensemble is made of this module's networks (seagul_learn.ensemble imports it).
+            from seagul_learn.ensemble import ValueEnsemble
+
             return ValueEnsemble._from_payload(payload, path)  # type: ignore[return-value]
-        if not isinstance(payload, dict) or payload.get("format") != FORMAT_TAG:
+        if payload.get("format") != FORMAT_TAG:
             raise ValueNetworkFileError(f"{str(path)!r} is not a seagul value network file (no {FORMAT_TAG!r} tag)")
-        _check_version(payload, path)
+        check_version(payload, path)
         try:
             config = payload["config"]
             net = cls(
@@ -398,381 +407,11 @@ class ValueNetwork(nn.Module):
         )
 
 
-def _num_parameters(nx: int, hidden: tuple[int, ...], n_params: int) -> int:
-    """Length of a network's CasADi parameter vector (see :meth:`ValueNetwork.casadi_parameters`)."""
-    n_in = nx + 1 + n_params
-    widths = [n_in, *hidden, 1]
-    return 2 * n_in + sum(a * b + b for a, b in itertools.pairwise(widths)) + 2 + n_params
+def __getattr__(name: str) -> Any:
+    """``ValueEnsemble`` and ``ValueModel``, which live in :mod:`seagul_learn.ensemble` (imported on first use:
+    that module imports this one, so it cannot be imported at the top of it)."""
+    if name in ("ValueEnsemble", "ValueModel"):
+        from seagul_learn import ensemble
 
-
-class ValueEnsemble(nn.Module):
-    """``K`` value networks fitted to the same data; the MPC sees a *pessimistic* value where they disagree.
-
-    ``predict``/``value_and_grad`` (training metrics, samplers) use the ensemble mean ``m(x, tau)``. The CasADi form
-    the MPC optimises is ``m + beta * s`` with ``s = sqrt(mean_k (V_k - m)^2 + eps^2) - eps`` the (smoothed) spread
-    over members and ``beta = pessimism`` an NLP parameter (the last entry of ``theta``). The members agree where
-    the data are dense and disagree where a network extrapolates, which is where the MPC's optimizer finds
-    under-estimates (docs/experiments/closed-loop.md); the spread term makes those states expensive instead of
-    attractive. Members differ in their initial weights (and, in training, their minibatches).
-    """
-
-    #: Smoothing of the spread (value units): keeps ``sqrt`` differentiable where all members agree.
-    SPREAD_EPS = 1e-3
-
-    def __init__(
-        self,
-        nx: int,
-        hidden: Sequence[int] = (32,),
-        members: int = 5,
-        pessimism: float = 1.0,
-        task_name: str = "",
-        seed: int | None = None,
-        n_params: int = 0,
-        theta: Any = None,
-        task_fingerprint: str = "",
-    ) -> None:
-        super().__init__()
-        if int(members) < 2:
-            raise ValueError(f"an ensemble needs >= 2 members, got {members}")
-        if not (np.isfinite(pessimism) and pessimism >= 0):
-            raise ValueError(f"pessimism must be a finite number >= 0, got {pessimism}")
-        base = 0 if seed is None else int(seed)
-        self.members = nn.ModuleList(
-            ValueNetwork(
-                nx,
-                hidden,
-                task_name=task_name,
-                seed=None if seed is None else 1000 * base + k,
-                n_params=n_params,
-                theta=theta,
-                task_fingerprint=task_fingerprint,
-            )
-            for k in range(int(members))
-        )
-        self.pessimism = float(pessimism)
-        self.task_name = str(task_name)
-        self.task_fingerprint = str(task_fingerprint)
-        """Fingerprint of the task the ensemble is trained for ("" if unknown; stored in its file)."""
-        self.config: ValueNetworkConfig = self.networks[0].config
-
-    @property
-    def networks(self) -> list[ValueNetwork]:
-        """The members in order (``self.members`` typed: ``nn.ModuleList`` yields plain modules)."""
-        return cast("list[ValueNetwork]", list(self.members))
-
-    @property
-    def nx(self) -> int:
-        """State dimension."""
-        return self.config.nx
-
-    @property
-    def n_params(self) -> int:
-        """Number of physical parameters among the inputs."""
-        return self.config.n_params
-
-    @property
-    def theta(self) -> np.ndarray:
-        """The members' condition (:meth:`ValueNetwork.condition`)."""
-        return self.networks[0].theta
-
-    def condition(self, theta: Any) -> None:
-        """Set every member's condition."""
-        for m in self.networks:
-            m.condition(theta)
-
-    @property
-    def in_mean(self) -> torch.Tensor:
-        """Input standardisation (shared by the members)."""
-        return self.networks[0].in_mean
-
-    @property
-    def in_std(self) -> torch.Tensor:
-        """Input standardisation scale (shared by the members)."""
-        return self.networks[0].in_std
-
-    def set_normalization(
-        self, x: np.ndarray, tau: np.ndarray, value: np.ndarray, theta: np.ndarray | None = None
-    ) -> None:
-        """The same standardisation for every member."""
-        for m in self.networks:
-            m.set_normalization(x, tau, value, theta)
-
-    def renormalize(self, x: np.ndarray, tau: np.ndarray, value: np.ndarray, theta: np.ndarray | None = None) -> None:
-        """:meth:`ValueNetwork.renormalize` for every member (the function of each is unchanged)."""
-        for m in self.networks:
-            m.renormalize(x, tau, value, theta)
-
-    def forward(self, x: torch.Tensor, tau: torch.Tensor, theta: torch.Tensor | None = None) -> torch.Tensor:
-        """The ensemble mean."""
-        return torch.stack([m(x, tau, theta) for m in self.members]).mean(dim=0)
-
-    def subset(self, indices: Sequence[int], pessimism: float | None = None) -> ValueEnsemble:
-        """A new ensemble of copies of the members ``indices`` (in that order; at least 2, no repeats), with this
-        ensemble's pessimism unless ``pessimism`` is given."""
-        idx = [int(i) for i in indices]
-        if len(idx) < 2 or len(set(idx)) != len(idx) or not all(0 <= i < len(self.members) for i in idx):
-            raise ValueError(f"subset needs >= 2 distinct member indices in 0..{len(self.members) - 1}, got {idx}")
-        out = ValueEnsemble(
-            self.nx,
-            self.config.hidden,
-            len(idx),
-            self.pessimism if pessimism is None else float(pessimism),
-            task_name=self.task_name,
-            n_params=self.n_params,
-            task_fingerprint=self.task_fingerprint,
-        )
-        for k, i in enumerate(idx):
-            out.members[k].load_state_dict(self.members[i].state_dict())
-        return out
-
-    def spread(self, x: Any, tau: Any, theta: Any = None) -> np.ndarray:
-        """Standard deviation over members at a batch (NumPy); ``theta``: the robots of an ensemble over robots."""
-        with torch.no_grad():
-            x_t = torch.as_tensor(np.atleast_2d(np.asarray(x, dtype=np.float64)))
-            t_t = torch.tensor(np.broadcast_to(np.asarray(tau, dtype=np.float64).reshape(-1), (x_t.shape[0],)).copy())
-            th_t = None
-            if theta is not None:
-                th_t = torch.as_tensor(np.asarray(theta, dtype=np.float64)).reshape(x_t.shape[0], -1)
-            values = torch.stack([m(x_t, t_t.clone(), th_t) for m in self.members])
-            return values.std(dim=0, unbiased=False).numpy()
-
-    def value_and_grad(self, x: Any, tau: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """NumPy helper: ``(mean, dmean/dx, dmean/dtau)``, as :meth:`ValueNetwork.value_and_grad`."""
-        return _value_and_grad(self.forward, x, tau)
-
-    def predict(self, x: Any, tau: Any, theta: Any = None) -> np.ndarray:
-        """NumPy values of the ensemble mean for a batch."""
-        return _predict(self.forward, x, tau, theta)
-
-    def value_and_grads(
-        self, x: Any, tau: Any, theta: Any = None
-    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-        """``(mean, dmean/dx, dmean/dtau, dmean/dtheta)``, as :meth:`ValueNetwork.value_and_grads`."""
-        return _value_and_grads(self, x, tau, theta)
-
-    # ----------------------------------------------------------------- casadi
-    def casadi_parameters(self) -> np.ndarray:
-        """``theta``: every member's parameters in order, then ``pessimism``."""
-        return np.concatenate([*(m.casadi_parameters() for m in self.networks), [self.pessimism]])
-
-    def casadi_function(self, form: CasadiForm = "scalar") -> ca.Function:
-        """CasADi ``(x, tau, theta) -> mean + pessimism * spread``; depends only on the architecture and ``K``.
-        ``form`` as for :meth:`ValueNetwork.casadi_function` (``"matrix"``: MX, for compiled code)."""
-        form = _check_form(form)
-        key = (self.nx, self.config.hidden, len(self.members), form, self.n_params)
-        if key not in _ENSEMBLE_CACHE:
-            one = _casadi_network(self.nx, self.config.hidden, form, self.n_params)
-            n = _num_parameters(self.nx, self.config.hidden, self.n_params)
-            k = len(self.members)
-            if form in ("taylor", "taylor_model"):
-                _ENSEMBLE_CACHE[key] = _taylor_ensemble(one, self.nx, k, n, self.SPREAD_EPS, form)
-                return _ENSEMBLE_CACHE[key]
-            sym: Any = ca.MX if form == "matrix" else ca.SX
-            x, tau = sym.sym("x", self.nx), sym.sym("tau", 1)
-            theta = sym.sym("theta", k * n + 1)
-            # Members inlined in the matrix form: call nodes would carry zero weight sensitivities into the Hessian.
-            values = [one.call([x, tau, theta[i * n : (i + 1) * n]], form == "matrix", False)[0] for i in range(k)]
-            mean = sum(values) / k
-            var = sum((v - mean) ** 2 for v in values) / k
-            eps = self.SPREAD_EPS
-            value = mean + theta[k * n] * (ca.sqrt(var + eps**2) - eps)
-            _ENSEMBLE_CACHE[key] = ca.Function(
-                "value_ensemble_theta", [x, tau, theta], [value], ["x", "tau", "theta"], ["V"]
-            )
-        return _ENSEMBLE_CACHE[key]
-
-    # -------------------------------------------------------------------- i/o
-    def save(self, path: str | os.PathLike[str]) -> Path:
-        """Write the ensemble to ``path`` atomically; :meth:`ValueNetwork.load` reads it back."""
-        config = {
-            "nx": self.config.nx,
-            "hidden": list(self.config.hidden),
-            "members": len(self.members),
-            "pessimism": self.pessimism,
-            "n_params": self.n_params,
-        }
-        return _write_file(path, ENSEMBLE_FORMAT_TAG, self.task_name, config, self, self.task_fingerprint)
-
-    @classmethod
-    def _from_payload(cls, payload: dict[str, Any], path: Path) -> ValueEnsemble:
-        _check_version(payload, path)
-        try:
-            c = payload["config"]
-            ens = cls(
-                int(c["nx"]),
-                tuple(c["hidden"]),
-                int(c["members"]),
-                float(c["pessimism"]),
-                task_name=str(payload["task_name"]),
-                n_params=int(c.get("n_params", 0)),
-                task_fingerprint=str(payload.get("task_fingerprint", "")),  # older files have none
-            )
-            ens.load_state_dict(payload["state_dict"])
-        except Exception as exc:
-            raise ValueNetworkFileError(
-                f"value ensemble file {str(path)!r} is inconsistent ({type(exc).__name__}: {exc})"
-            ) from exc
-        return ens
-
-    def extra_repr(self) -> str:
-        return f"task={self.task_name!r}, members={len(self.members)}, pessimism={self.pessimism}"
-
-
-ValueModel: TypeAlias = ValueNetwork | ValueEnsemble
-"""What training, the samplers and the MPC accept as a learned value function: a network or an ensemble."""
-
-
-def _write_file(
-    path: str | os.PathLike[str],
-    tag: str,
-    task_name: str,
-    config: dict[str, Any],
-    module: nn.Module,
-    task_fingerprint: str = "",
-) -> Path:
-    """One ``torch.save`` dict (tensors and builtins only: loads with ``weights_only=True``), written atomically."""
-    path = Path(path)
-    payload = {
-        "format": tag,
-        "version": FORMAT_VERSION,
-        "task_name": task_name,
-        "task_fingerprint": task_fingerprint,
-        "config": config,
-        "state_dict": {k: v.detach().clone() for k, v in module.state_dict().items()},
-    }
-    buffer = io.BytesIO()
-    torch.save(payload, buffer)
-    atomic_write_bytes(path, buffer.getvalue())
-    return path
-
-
-def _check_version(payload: dict[str, Any], path: Path) -> None:
-    if payload.get("version") != FORMAT_VERSION:
-        raise ValueNetworkFileError(
-            f"{str(path)!r} has value-network format version {payload.get('version')!r}; "
-            f"this seagul reads version {FORMAT_VERSION}"
-        )
-
-
-_ENSEMBLE_CACHE: dict[tuple[int, tuple[int, ...], int, str, int], ca.Function] = {}
-_CASADI_CACHE: dict[tuple[int, tuple[int, ...], str, int], ca.Function] = {}
-
-
-def _check_form(form: Any) -> CasadiForm:
-    if form not in ("scalar", "matrix", "taylor", "taylor_model"):
-        raise ValueError(f"casadi_function form must be 'scalar', 'matrix', 'taylor' or 'taylor_model', got {form!r}")
-    return cast(CasadiForm, form)
-
-
-def _casadi_network(nx: int, hidden: tuple[int, ...], form: CasadiForm = "scalar", n_params: int = 0) -> ca.Function:
-    """Build (once per architecture and form) the symbolic network with ``theta`` laid out as in
-    ``casadi_parameters``."""
-    key = (nx, hidden, form, n_params)
-    if key in _CASADI_CACHE:
-        return _CASADI_CACHE[key]
-    n_in = nx + 1 + n_params
-    widths = [n_in, *hidden, 1]
-    n_theta = _num_parameters(nx, hidden, n_params)
-    sym: Any = ca.SX if form == "scalar" else ca.MX
-    x = sym.sym("x", nx)
-    tau = sym.sym("tau", 1)
-    theta = sym.sym("theta", n_theta)
-    pos = 0
-
-    def take(n: int) -> Any:
-        nonlocal pos
-        out = theta[pos : pos + n]
-        pos += n
-        return out
-
-    in_mean, in_std = take(n_in), take(n_in)
-    condition = theta[n_theta - n_params :]  # the robot (empty for a plain network), after the output statistics
-    if form in ("taylor", "taylor_model"):
-        fn = _taylor_network(x, tau, theta, condition, in_mean, in_std, take, widths, form)
-        _CASADI_CACHE[key] = fn
-        return fn
-    h = (ca.vertcat(x, tau, condition) - in_mean) / in_std
-    for i, (a, b) in enumerate(itertools.pairwise(widths)):
-        # torch stores W as (out, in) row-major; CasADi reshapes column-major, hence the transpose.
-        weight = ca.reshape(take(a * b), a, b).T
-        bias = take(b)
-        h = ca.mtimes(weight, h) + bias
-        if i < len(widths) - 2:
-            h = ca.tanh(h)
-    out_mean, out_std = take(1), take(1)
-    value = h * out_std + out_mean
-    fn = ca.Function("value_network_theta", [x, tau, theta], [value], ["x", "tau", "theta"], ["V"])
-    _CASADI_CACHE[key] = fn
-    return fn
-
-
-def _taylor_network(
-    x: ca.MX,
-    tau: ca.MX,
-    theta: ca.MX,
-    condition: ca.MX,
-    in_mean: ca.MX,
-    in_std: ca.MX,
-    take: Any,
-    widths: list[int],
-    form: str,
-) -> ca.Function:
-    """The ``"taylor"`` and ``"taylor_model"`` forms (:meth:`ValueNetwork.casadi_function`): the network's value,
-    gradient and Hessian in ``x`` at ``x0`` from explicit forward (``A_l = da_l/dx``) and backward
-    (``delta_l = dV/dh_l``) passes of dense products, and the quadratic they define."""
-    nx = x.numel()
-    if form == "taylor_model":
-        return _taylor_quadratic(nx)
-    n_in = widths[0]
-    h = (ca.vertcat(x, tau, condition) - in_mean) / in_std
-    jac = ca.vertcat(ca.diag(1.0 / in_std[:nx]), ca.MX.zeros(n_in - nx, nx))  # dz/dx
-    layers = []
-    for i, (a, b) in enumerate(itertools.pairwise(widths)):
-        weight = ca.reshape(take(a * b), a, b).T
-        bias = take(b)
-        if i == len(widths) - 2:
-            last_weight, last_bias = weight, bias
-            break
-        pre_jac = ca.mtimes(weight, jac)  # A_l
-        h = ca.tanh(ca.mtimes(weight, h) + bias)
-        slope = 1 - h**2  # tanh'
-        jac = pre_jac * ca.repmat(slope, 1, nx)
-        layers.append((weight, pre_jac, h, slope))
-    out_mean, out_std = take(1), take(1)
-    value = (ca.mtimes(last_weight, h) + last_bias) * out_std + out_mean
-    grad = out_std * ca.mtimes(last_weight, jac)  # (1, nx)
-    delta = out_std * last_weight.T  # dV/dh of the last hidden layer
-    hess = ca.MX.zeros(nx, nx)
-    for weight, pre_jac, act, slope in reversed(layers):
-        curv = delta * (-2 * act * slope)  # dV/dh * tanh''(a)
-        hess = hess + ca.mtimes(pre_jac.T, pre_jac * ca.repmat(curv, 1, nx))
-        delta = ca.mtimes(weight.T, delta * slope)
-    coeffs = ca.vertcat(value, grad.T, ca.vec(hess))
-    return ca.Function("value_network_taylor", [x, tau, theta], [coeffs], ["x0", "tau", "theta"], ["c"])
-
-
-def _taylor_quadratic(nx: int) -> ca.Function:
-    """``(x, x0, c) -> c[0] + g (x - x0) + 1/2 (x - x0)' H (x - x0)`` with ``c = [V, g, vec(H)]``."""
-    x, x0, c = ca.SX.sym("x", nx), ca.SX.sym("x0", nx), ca.SX.sym("c", 1 + nx + nx * nx)
-    d = x - x0
-    hess = ca.reshape(c[1 + nx :], nx, nx)
-    model = c[0] + ca.dot(c[1 : 1 + nx], d) + 0.5 * ca.dot(d, ca.mtimes(hess, d))
-    return ca.Function("value_taylor_model", [x, x0, c], [model], ["x", "x0", "c"], ["V"])
-
-
-def _taylor_ensemble(one: ca.Function, nx: int, k: int, n: int, eps: float, form: str) -> ca.Function:
-    """The ensemble's ``"taylor"`` (every member's coefficients, then the pessimism) and ``"taylor_model"`` (mean
-    plus pessimism times spread of the members' quadratics: equal to the ensemble to second order at ``x0``)."""
-    nc = 1 + nx + nx * nx
-    if form == "taylor":
-        x0, tau, theta = ca.MX.sym("x0", nx), ca.MX.sym("tau", 1), ca.MX.sym("theta", k * n + 1)
-        coeffs = [one.call([x0, tau, theta[i * n : (i + 1) * n]], True, False)[0] for i in range(k)]
-        out = ca.vertcat(*coeffs, theta[k * n])
-        return ca.Function("value_ensemble_taylor", [x0, tau, theta], [out], ["x0", "tau", "theta"], ["c"])
-    quad = _taylor_quadratic(nx)
-    xs, x0s, c = ca.SX.sym("x", nx), ca.SX.sym("x0", nx), ca.SX.sym("c", k * nc + 1)
-    values = [quad(xs, x0s, c[i * nc : (i + 1) * nc]) for i in range(k)]
-    mean = sum(values) / k
-    var = sum((v - mean) ** 2 for v in values) / k
-    value = mean + c[k * nc] * (ca.sqrt(var + eps**2) - eps)
-    return ca.Function("value_ensemble_taylor_model", [xs, x0s, c], [value], ["x", "x0", "c"], ["V"])
+        return getattr(ensemble, name)
+    raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+import subprocess
+import sys
+
 import casadi as ca
 import numpy as np
 import pytest
@@ -256,3 +259,70 @@ def test_the_mpc_plans_with_a_network_over_robots_at_its_condition():
     mpc.set_robot(task.parameters.high)
     np.testing.assert_array_equal(mpc._vf_theta[-6:], task.parameters.high)
     np.testing.assert_array_equal(net.theta, task.parameters.high)  # the caller's network is not touched
+
+
+def test_the_ensemble_file_format_and_casadi_graphs_live_in_their_modules_and_still_import_from_value_network():
+    """``ValueEnsemble``/``ValueModel`` (:mod:`seagul_learn.ensemble`), the file format
+    (:mod:`seagul_learn.value_files`) and the CasADi forms (:mod:`seagul_learn.value_casadi`) are the same objects
+    under their old names, without a warning; either module imports first (the ensemble's module imports the
+    network's), and the CasADi graphs need no torch (an import of it fails in that interpreter)."""
+    import warnings
+
+    from seagul_learn import ensemble, value_casadi, value_files, value_network
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        for module, names in {
+            ensemble: ("ValueEnsemble", "ValueModel"),
+            value_files: ("ValueNetworkFileError", "FORMAT_TAG", "ENSEMBLE_FORMAT_TAG", "FORMAT_VERSION"),
+            value_casadi: ("CasadiForm",),
+        }.items():
+            for name in names:
+                assert getattr(value_network, name) is getattr(module, name), name
+                assert name in value_network.__all__, name
+    with pytest.raises(AttributeError, match="no attribute 'not_a_name'"):
+        value_network.not_a_name  # noqa: B018
+    for first in ("seagul_learn.ensemble", "seagul_learn.value_network"):
+        code = (
+            f"import {first}; from seagul_learn.value_network import ValueEnsemble, ValueNetwork; "
+            "from seagul_learn.ensemble import ValueEnsemble as E; assert E is ValueEnsemble; "
+            "assert ValueEnsemble(2, (4,), 2).networks[0].__class__ is ValueNetwork"
+        )
+        done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+        assert done.returncode == 0, done.stderr
+    code = (
+        "import sys; sys.modules['torch'] = None; from seagul_learn import value_casadi as vc; "
+        "f = vc.casadi_network(2, (3,)); assert f.numel_in(2) == vc.num_parameters(2, (3,), 0) == 24"
+    )
+    done = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert done.returncode == 0, done.stderr
+
+
+def test_value_files_hold_the_documented_dict_and_refuse_what_is_not_one(tmp_path):
+    """The file is one ``torch.save`` dict with the documented keys (read back with ``weights_only=True``); a
+    directory, a file holding something other than a dict, and an ensemble file of a future version are refused by
+    name."""
+    from seagul_learn.ensemble import ValueEnsemble
+    from seagul_learn.value_files import ENSEMBLE_FORMAT_TAG, FORMAT_TAG, read_value_file
+
+    net = _trained_like_network()
+    payload = read_value_file(net.save(tmp_path / "net.pt"))
+    assert set(payload) == {"format", "version", "task_name", "task_fingerprint", "config", "state_dict"}
+    assert (payload["format"], payload["version"], payload["config"]) == (
+        FORMAT_TAG,
+        1,
+        {"nx": net.nx, "hidden": list(net.config.hidden), "n_params": 0},
+    )
+    ens = ValueEnsemble(2, (4,), 3, 0.5, task_name="t", seed=0)
+    payload = read_value_file(ens.save(tmp_path / "ens.pt"))
+    assert payload["format"] == ENSEMBLE_FORMAT_TAG and payload["config"]["members"] == 3
+    assert payload["config"]["pessimism"] == 0.5 and isinstance(ValueNetwork.load(tmp_path / "ens.pt"), ValueEnsemble)
+    with pytest.raises(ValueNetworkFileError, match="is a directory"):
+        ValueNetwork.load(tmp_path)
+    listed = tmp_path / "list.pt"
+    torch.save([1, 2], listed)
+    with pytest.raises(ValueNetworkFileError, match=r"list\.pt.*not a seagul value network"):
+        ValueNetwork.load(listed)
+    torch.save({**payload, "version": 2}, tmp_path / "future_ens.pt")
+    with pytest.raises(ValueNetworkFileError, match="version 2"):
+        ValueNetwork.load(tmp_path / "future_ens.pt")
