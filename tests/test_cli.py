@@ -140,20 +140,19 @@ def test_generate_uniform_and_validation(tmp_path, toy_solver, capsys):
     ],
 )
 def test_reproduce_sb3_options_give_the_config(argv, models, algo, ppo):
-    from seagul_learn.cli import build_parser
-    from seagul_learn.commands._config import dataclass_from_args
+    from seagul_learn.commands.reproduce import config_flags
     from seagul_learn.experiment import ExperimentConfig
 
-    args = build_parser().parse_args(["reproduce", "acrobot", *argv])
-    config = dataclass_from_args(ExperimentConfig, args)
+    config = config_flags(["acrobot", *argv])
     assert config == ExperimentConfig(task="acrobot", workers=2, ppo_model=ppo, sb3_models=models, sb3_algo=algo)
 
 
 def test_reproduce_sb3_errors_are_named(tmp_path, capsys):
-    with pytest.raises(SystemExit) as info:
-        main(["reproduce", "acrobot", "--sb3", "m.zip", "--sb3-algo", "A2C"])
-    assert info.value.code == 2
-    assert "argument --sb3-algo: invalid choice: 'A2C'" in capsys.readouterr().err
+    assert (
+        main(["reproduce", "acrobot", "--sb3-models", "m.zip", "--sb3-algo", "A2C", "--out", str(tmp_path / "a")]) == 2
+    )
+    assert "unknown sb3_algo 'A2C'; choose one of ['PPO', 'SAC']" in capsys.readouterr().err
+    assert not (tmp_path / "a").exists()
     missing = str(tmp_path / "gone" / "model.zip")
     assert main(["reproduce", "acrobot", "--preset", "smoke", "--sb3", missing, "--out", str(tmp_path / "r")]) == 2
     assert f"SB3 model '{missing}' does not exist" in capsys.readouterr().err

@@ -47,7 +47,6 @@ OLD_TRAIN_FLAGS = """--sobolev --solves-per-round
 --cl-uniform-solves --cl-jit --no-cl-jit --value-cap --snapshots --eval-every --cache-dir
 --no-progress --workers --backend""".split()
 RUN_FLAGS = "--task --out --resume --recipe --config --solver-options".split()
-OLD_REPRODUCE_FLAGS = "--preset --seeds --workers --backend --out --resume --ppo --no-progress -h --help".split()
 
 
 def _subparser(name: str) -> argparse.ArgumentParser:
@@ -271,12 +270,25 @@ def test_documented_train_flags_exist(capsys):
 
 
 # ------------------------------------------------------------------------------------------------ seagul reproduce
-def test_every_experiment_config_field_is_an_argument():
-    parser = _subparser("reproduce")
-    actions = _actions_by_dest(parser)
+def _reproduce_help(capsys) -> str:
+    from seagul_learn.commands.reproduce import config_flags as reproduce_flags
+
+    with pytest.raises(SystemExit) as info:
+        reproduce_flags(["acrobot", "--help"])
+    assert info.value.code == 0
+    return " ".join(re.sub(r"[│╭╮╰╯─•]", " ", capsys.readouterr().out).split())
+
+
+def test_every_experiment_config_field_is_a_flag_with_its_docstring(capsys):
+    text = _reproduce_help(capsys)
     for field in dataclasses.fields(ExperimentConfig):
-        assert field.name in actions, f"ExperimentConfig.{field.name} has no argument"
-    assert [f for f in OLD_REPRODUCE_FLAGS if f not in parser._option_string_actions] == []
+        if field.name == "task":  # the positional TASK
+            continue
+        flag = "--" + field.name.replace("_", "-")
+        assert flag in text, f"ExperimentConfig.{field.name} has no flag {flag}"
+    assert "Override of the preset's number of paired seeds." in text  # the field's docstring is its help
+    assert "--out DIR" in text and "--resume DIR" in text
+    assert "--progress, --no-progress" in text and "--shipped-jit, --no-shipped-jit" in text
 
 
 @pytest.mark.parametrize(
@@ -291,12 +303,48 @@ def test_every_experiment_config_field_is_an_argument():
             ),
         ),
         (["acrobot", "--ppo-model", "p.zip"], ExperimentConfig(task="acrobot", workers=2, ppo_model="p.zip")),
+        (["--preset=smoke", "acrobot", "--shipped-jit"], ExperimentConfig(preset="smoke", workers=2, shipped_jit=True)),
+        (["acrobot", "--methods", "shipped,uniform"], ExperimentConfig(workers=2, methods=("shipped", "uniform"))),
+        (["acrobot", "--methods", "shipped", "uniform"], ExperimentConfig(workers=2, methods=("shipped", "uniform"))),
+        (["glider", "--envs", "a,b"], ExperimentConfig(task="glider", workers=2, envs=("a", "b"))),
     ],
 )  # fmt: skip
-def test_reproduce_arguments_give_the_experiment_config(argv, expected):
-    args = build_parser().parse_args(["reproduce", *argv])
-    assert dataclass_from_args(ExperimentConfig, args) == expected
-    assert args.out is None and args.resume is None
+def test_reproduce_flags_give_the_experiment_config(argv, expected):
+    from seagul_learn.commands.reproduce import parse
+
+    config, run = parse(argv)
+    assert config == expected
+    assert run.out is None and run.resume is None
+
+
+def test_reproduce_old_spellings_print_a_deprecation_message(capsys):
+    from seagul_learn.commands.reproduce import config_flags as reproduce_flags
+
+    config = reproduce_flags(["acrobot", "--ppo", "m.zip", "--sb3", "a.zip"])
+    assert config.ppo_model == "m.zip" and config.sb3_models == ("a.zip",)
+    err = capsys.readouterr().err
+    assert (
+        "deprecated" in err and "--ppo m.zip -> --ppo-model m.zip" in err and "--sb3 a.zip -> --sb3-models a.zip" in err
+    )
+    reproduce_flags(["acrobot", "--ppo-model", "m.zip", "--sb3-models", "a.zip"])
+    assert capsys.readouterr().err == ""
+
+
+def test_reproduce_run_options_and_task_errors(capsys):
+    from seagul_learn.commands.reproduce import parse
+
+    config, run = parse(["glider", "--out", "o", "--seeds", "2"])
+    assert run.out == "o" and run.task == "glider" and config.task == "glider" and config.seeds == 2
+    _, run = parse(["acrobot", "--resume", "r"])
+    assert run.resume == "r"
+    for argv, message in ((["--seeds", "2"], "required: TASK"), (["nosuchtask"], "unknown task 'nosuchtask'")):
+        with pytest.raises(SystemExit) as info:
+            parse(argv)
+        assert info.value.code == 2
+        assert message in capsys.readouterr().err
+    with pytest.raises(SystemExit) as info:
+        parse(["acrobot", "--seeds", "two"])
+    assert info.value.code == 2 and "--seeds" in capsys.readouterr().err
 
 
 def test_every_command_still_builds():
