@@ -61,7 +61,7 @@ from gymnasium.utils.env_checker import check_env
 
 import seagul_envs
 from seagul_control.lqr import LQRPolicy
-from seagul_control.mpc import LimitedLookaheadMPC
+from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
 from seagul_envs import Task, available_tasks, make_env, make_task, register_task, unregister_task, validate_task
 from seagul_learn.parallel import solve_many
 from seagul_learn.results import SolveResult
@@ -570,7 +570,7 @@ def _assert_predict_protocol(policy: Any, task: Task) -> None:
 
 
 def test_the_lookahead_mpc_follows_the_predict_protocol(task: Task) -> None:
-    mpc = LimitedLookaheadMPC(task, None, horizon=3, jit=False)
+    mpc = LimitedLookaheadMPC(task, None, 3, MPCOptions(jit=False))
     _assert_predict_protocol(mpc, task)
     assert len(mpc.last_info) == 2
 

@@ -21,7 +21,7 @@ import pytest
 from toy_problem import ToySolver
 
 from seagul_control.evaluation import EpisodeResult, PolicySpec, evaluate, is_success, start_grid
-from seagul_control.mpc import LimitedLookaheadMPC
+from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
 from seagul_envs import (
     EvaluationGrid,
     SuccessRule,
@@ -161,20 +161,20 @@ def test_ray_gives_the_same_results(task: Task, starts: np.ndarray) -> None:
 
 # ------------------------------------------------------------------------------------------------ train, resume
 def _config(task: Any, tmp_path: Path, **overrides: Any) -> TrainConfig:
-    base: dict[str, Any] = dict(
-        task=task,
-        sampler="adversarial",
-        budget=4,
-        solves_per_round=2,
-        train_steps_per_round=5,
-        batch_size=16,
-        pretrain_solves=2,
-        pretrain_steps=5,
-        adv_max_steps=2,
-        solver_options=SOLVER,
-        cache_dir=str(tmp_path / "cache"),
-        progress=False,
-    )
+    base: dict[str, Any] = {
+        "task": task,
+        "sampler": "adversarial",
+        "budget": 4,
+        "schedule.solves_per_round": 2,
+        "schedule.train_steps_per_round": 5,
+        "schedule.batch_size": 16,
+        "schedule.pretrain_solves": 2,
+        "schedule.pretrain_steps": 5,
+        "sampler.max_steps": 2,
+        "solver_options": SOLVER,
+        "runtime.cache_dir": str(tmp_path / "cache"),
+        "runtime.progress": False,
+    }
     return TrainConfig(**{**base, **overrides})
 
 
@@ -230,7 +230,7 @@ def test_training_stores_the_task_and_resumes_to_the_same_weights(
 # --------------------------------------------------------------------------------------------- MPC and evaluation
 def test_the_learned_mpc_runs_in_closed_loop(task: Task, trained: tuple[Path, Any]) -> None:
     _, network = trained
-    policy = LimitedLookaheadMPC(task, network, horizon=task.profile.default_horizon(task), jit=False)
+    policy = LimitedLookaheadMPC(task, network, task.profile.default_horizon(task), MPCOptions(jit=False))
     env = make_env(task)
     obs, _ = env.reset(options={"state": np.zeros(4)})
     done, steps = False, 0
@@ -301,7 +301,7 @@ def test_a_parameter_variant_of_the_acrobot_gets_its_own_validation_set(tmp_path
     assert again.num_solves == 200 and len(records) == 200
     assert len(list(tmp_path.glob("validation-acrobot-*"))) == 2
     # Through train(): a TrainConfig holding the variant object validates on the variant's set.
-    config = _config(variant, tmp_path, validate=True, solver_options=None, cache_dir=str(tmp_path))
+    config = _config(variant, tmp_path, validate=True, solver_options=None, **{"runtime.cache_dir": str(tmp_path)})
     third = ToySolver(variant)
     train(config, tmp_path / "run", batch_solver=third, solver_name="toy")
     assert third.num_solves == 2 + 4  # pretraining and budget only: the variant's validation set was cached

@@ -198,23 +198,19 @@ def test_without_the_retry_options_the_same_fault_loses_the_chunk(
 
 def test_training_on_ray_equals_training_in_process(local_ray: Any, tmp_path: Path) -> None:
     """The same job (``seagul train --backend ray``): identical dataset and weights to the in-process run."""
-    from seagul_learn.training import TrainConfig, train
+    from seagul_learn.training import AdversarialOptions, RuntimeConfig, ScheduleConfig, TrainConfig, train
 
     def run(name: str, **runtime: Any) -> Any:
         config = TrainConfig(
             task="acrobot",
-            sampler="adversarial",
+            sampler=AdversarialOptions(max_steps=2),
             budget=2,  # the actors (and their solvers) are built once, on the first Ray call
-            solves_per_round=2,
-            train_steps_per_round=10,
-            batch_size=32,
-            pretrain_solves=2,
-            pretrain_steps=5,
-            adv_max_steps=2,
+            schedule=ScheduleConfig(
+                solves_per_round=2, train_steps_per_round=10, batch_size=32, pretrain_solves=2, pretrain_steps=5
+            ),
             seed=7,
             validate=False,
-            progress=False,
-            **runtime,
+            runtime=RuntimeConfig(progress=False, **runtime),
         )
         return train(config, tmp_path / name)
 

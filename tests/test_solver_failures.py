@@ -40,20 +40,20 @@ def test_a_failed_solve_returns_its_status_and_never_raises() -> None:
 
 
 def _config(**overrides: object) -> TrainConfig:
-    base: dict[str, object] = dict(
-        task="acrobot",
-        sampler="adversarial",
-        budget=6,
-        solves_per_round=3,
-        train_steps_per_round=20,
-        batch_size=32,
-        pretrain_solves=3,
-        pretrain_steps=10,
-        adv_max_steps=3,
-        seed=2,
-        validate=False,
-        progress=False,
-    )
+    base: dict[str, object] = {
+        "task": "acrobot",
+        "sampler": "adversarial",
+        "budget": 6,
+        "schedule.solves_per_round": 3,
+        "schedule.train_steps_per_round": 20,
+        "schedule.batch_size": 32,
+        "schedule.pretrain_solves": 3,
+        "schedule.pretrain_steps": 10,
+        "sampler.max_steps": 3,
+        "seed": 2,
+        "validate": False,
+        "runtime.progress": False,
+    }
     base.update(overrides)
     return TrainConfig(**base)  # type: ignore[arg-type]
 
@@ -71,7 +71,7 @@ def _iterates_fail(config: TrainConfig, garbage: float | None) -> BatchSolver:
     def solve(starts: np.ndarray, taus: np.ndarray) -> list[SolveResult]:
         out: list[SolveResult] = []
         for x, t in zip(starts, taus, strict=True):
-            pretraining = calls[0] < config.pretrain_solves  # pretraining comes first (validation is off)
+            pretraining = calls[0] < config.schedule.pretrain_solves  # pretraining comes first (validation is off)
             calls[0] += 1
             (result,) = (good if pretraining or tuple(x) in pool else bad)(x[None], np.array([t]))
             if not result.success and garbage is not None:
@@ -141,7 +141,7 @@ def test_failed_records_do_not_influence_the_weights(tmp_path: Path) -> None:
         out = []
         for r in inner(starts, taus):
             calls[0] += 1
-            if calls[0] == config.pretrain_solves + 1:
+            if calls[0] == config.schedule.pretrain_solves + 1:
                 assert r.success
                 r = dataclasses.replace(r, cost_to_go=r.cost_to_go + 1e9)
             out.append(r)
