@@ -347,6 +347,16 @@ def test_reproduce_run_options_and_task_errors(capsys):
     assert info.value.code == 2 and "--seeds" in capsys.readouterr().err
 
 
+def test_every_reproduce_flag_help_prints_is_documented(capsys):
+    """Each flag tyro derives for ``seagul reproduce`` is in the reference page, and so are the earlier spellings."""
+    page = (ROOT / "docs" / "reference" / "cli.md").read_text()
+    section = page[page.index("## `seagul reproduce`") :]
+    flags = set(re.findall(r"(?<![\w-])--[a-z][a-z0-9.-]*[a-z0-9]", _reproduce_help(capsys)))
+    assert {"--preset", "--methods", "--sb3-models", "--no-shipped-jit", "--out", "--resume"} <= flags
+    missing = sorted(f for f in flags | {"--ppo", "--sb3"} if f"`{f}" not in section and f != "--help")
+    assert missing == [], f"seagul reproduce flags missing from docs/reference/cli.md: {missing}"
+
+
 def test_every_command_still_builds():
     assert {c.name for c in discover_commands()} >= {"evaluate", "generate", "reproduce", "train"}
 
