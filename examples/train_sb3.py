@@ -6,12 +6,13 @@ Run::
     .venv/bin/python examples/train_sb3.py --algo PPO --env-id SeagulGlider-v0 --out runs/ppo_glider
     .venv/bin/python examples/train_sb3.py --algo SAC --test      # seconds, for CI
 
-The config (:class:`seagul_learn.baselines.SB3Config`) is declared once and every field is a ``--flag`` (``--help``
-lists them with their docstrings). The settings are the env id's tuned entry in ``seagul_learn/hyperparams/`` (the
-learner's view: cos/sin angles, scaled time to go, actions in [-1, 1], a bounded success-aware reward; rl-zoo
-sizes); ``--algo-overrides '{"ent_coef": 0.01}'`` and ``--view-overrides`` change them. The run directory gets
-``model.zip``, ``vecnormalize.pkl``, ``view.json`` and, in ``best/``, the checkpoint selected on validation starts,
-with ``curve.json`` (validation success against environment steps). Then evaluate it next to the MPC (the statistics
+The config (:class:`seagul_learn.baselines.SB3Config`) is declared once and tyro derives a ``--flag`` from every
+field (``--help`` lists them with their docstrings). The settings are the env id's tuned entry in
+``seagul_learn/hyperparams/`` (the learner's view: cos/sin angles, scaled time to go, actions in [-1, 1], a bounded
+success-aware reward; rl-zoo sizes); the dict fields take a JSON object, ``--algo-overrides '{"ent_coef": 0.01}'``
+and ``--view-overrides '{"end_scale": 4.0}'``, and change them. The run directory gets ``model.zip``,
+``vecnormalize.pkl``, ``view.json`` and, in ``best/``, the checkpoint selected on validation starts, with
+``curve.json`` (validation success against environment steps). Then evaluate it next to the MPC (the statistics
 and the view beside the model are picked up automatically)::
 
     seagul evaluate --task acrobot --sb3 runs/sac_SeagulAcrobot-v0/best/model.zip --sb3-algo SAC --lqr --out <dir>
@@ -21,7 +22,7 @@ from __future__ import annotations
 
 import json
 
-from seagul_control.evaluation import heldout_starts
+from seagul_control.starts import heldout_starts
 from seagul_learn.baselines import config_from_args, episode_stats, task_of_env, train_sb3
 
 

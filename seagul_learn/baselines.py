@@ -28,19 +28,22 @@ import json
 import shutil
 import time
 from collections.abc import Callable
-from dataclasses import asdict, dataclass, field, replace
+from dataclasses import asdict, dataclass, field, fields, replace
 from functools import partial
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
 import gymnasium as gym
 import numpy as np
+import tyro
 import yaml  # type: ignore[import-untyped]
+from tyro.constructors import PrimitiveConstructorSpec
 
 import seagul_envs  # noqa: F401  (registers the envs)
 from seagul_control.evaluation import run_policy_episode
 from seagul_control.io import atomic_write_json
 from seagul_envs.wrappers import LearnerView, learner_env
+from seagul_learn.commands._json import JsonObject
 
 ALGOS = ("PPO", "SAC")
 
@@ -66,11 +69,23 @@ def tuned(algo: str, env_id: str) -> dict[str, Any]:
     return copy.deepcopy(entry)
 
 
+_ALGO_FLAG = PrimitiveConstructorSpec(
+    nargs=1,
+    metavar="{" + ",".join(ALGOS) + "}",
+    instance_from_str=lambda args: args[0],
+    is_instance=lambda value: isinstance(value, str),
+    str_from_instance=lambda value: [value],
+    choices=ALGOS,
+)
+"""``--algo``: one of :data:`ALGOS` (the field stays a ``str``)."""
+
+
 @dataclass
 class SB3Config:
-    """Everything that defines an RL baseline run (the example's and the benchmark's command lines derive from it)."""
+    """Everything that defines an RL baseline run (the example's and the benchmark's command lines derive from it:
+    :func:`config_from_args`, with tyro; the dict fields take a JSON object on the command line)."""
 
-    algo: str = "PPO"
+    algo: Annotated[str, _ALGO_FLAG] = "PPO"
     """``"PPO"`` or ``"SAC"``."""
     env_id: str = "SeagulAcrobot-v0"
     """Gymnasium id to train in (any registered seagul env); its tuned entry gives the settings."""
@@ -78,9 +93,9 @@ class SB3Config:
     """Environment steps over all envs (0: the tuned entry's ``n_timesteps``)."""
     seed: int = 0
     """Seed of the envs, the networks and the exploration."""
-    algo_overrides: dict[str, Any] = field(default_factory=dict)
+    algo_overrides: JsonObject = field(default_factory=dict)
     """SB3 constructor arguments (and ``n_envs``, ``normalize``) over the tuned entry, e.g. ``{"ent_coef": 0.01}``."""
-    view_overrides: dict[str, Any] = field(default_factory=dict)
+    view_overrides: JsonObject = field(default_factory=dict)
     """:class:`~seagul_envs.wrappers.LearnerView` settings over the tuned entry's ``learner_view``."""
     eval_every: int = 0
     """Environment steps between two validation points of the learning curve (0: the tuned entry's)."""
@@ -378,28 +393,31 @@ def _write_json(path: Path, payload: Any) -> None:
     atomic_write_json(path, payload, indent=1)
 
 
+@dataclass
+class SB3Run(SB3Config):
+    """An SB3 baseline run from the command line: the :class:`SB3Config` fields, where to write it, and a CI switch."""
+
+    out: Annotated[Path | None, tyro.conf.arg(metavar="DIR")] = None
+    """Run directory (default: ``runs/<algo>_<env id>``)."""
+    test: bool = False
+    """A seconds-long run (CI smoke test): :func:`smoke_config` of the config."""
+
+
 def config_from_args(argv: list[str] | None = None, description: str = "") -> tuple[SB3Config, Path]:
-    """``(config, out)`` from the command line: one ``--flag`` per :class:`SB3Config` field (help from the field
-    docstrings), ``--out DIR`` and ``--test`` (a seconds-long run for CI)."""
-    import argparse
+    """``(config, out)`` from the command line (``argv``; default ``sys.argv[1:]``): tyro derives one ``--flag``
+    per :class:`SB3Config` field (``--env-id``, ``--total-timesteps``, ...; help from the field docstrings; the dict
+    fields take a JSON object, ``--algo-overrides '{"ent_coef": 0.01}'``), plus ``--out DIR`` and ``--test`` (a
+    seconds-long run for CI: :func:`smoke_config`).
 
-    from seagul_learn.commands._config import Option, add_dataclass_arguments, dataclass_from_args
-
-    parser = argparse.ArgumentParser(
-        description=description or "Train an SB3 baseline on a seagul env.",
-        formatter_class=argparse.RawDescriptionHelpFormatter,
-    )
-    add_dataclass_arguments(parser, SB3Config, {"algo": Option(choices=ALGOS)})
-    parser.add_argument("--out", type=Path, default=None, help="run directory (default: runs/<algo>_<env id>)")
-    parser.add_argument("--test", action="store_true", help="a seconds-long run (CI smoke test)")
-    args = parser.parse_args(argv)
-    try:
-        config = dataclass_from_args(SB3Config, args)
-    except ValueError as exc:
-        parser.error(str(exc))
-    if args.test:
+    Raises:
+        SystemExit: a bad flag or value (status 2: tyro's message naming it, :class:`SB3Config`'s checks included)
+            or ``--help`` (status 0).
+    """
+    command = tyro.cli(SB3Run, args=argv, description=description or "Train an SB3 baseline on a seagul env.")
+    config = SB3Config(**{f.name: getattr(command, f.name) for f in fields(SB3Config)})
+    if command.test:
         config = smoke_config(config)
-    out = args.out or Path("runs") / f"{config.algo.lower()}_{config.env_id}"
+    out = command.out or Path("runs") / f"{config.algo.lower()}_{config.env_id}"
     return config, out
 
 

@@ -3,7 +3,8 @@
 from __future__ import annotations
 
 import json
-from dataclasses import replace
+from dataclasses import fields, replace
+from pathlib import Path
 
 import gymnasium as gym
 import numpy as np
@@ -150,10 +151,46 @@ def test_command_line_is_derived_from_the_config(tmp_path):
         ["--algo", "SAC", "--seed", "2", "--algo-overrides", '{"tau": 0.01}', "--out", str(tmp_path)]
     )
     assert (config.algo, config.seed, config.algo_overrides) == ("SAC", 2, {"tau": 0.01}) and out == tmp_path
-    small, _ = config_from_args(["--algo", "PPO", "--test"])
+    assert type(config) is SB3Config  # the command's own switches (--out, --test) are not part of the config
+    small, default_out = config_from_args(["--algo", "PPO", "--test"])
     assert small.total_timesteps == 256 and small.algo_overrides["n_steps"] == 64
-    with pytest.raises(SystemExit):
-        config_from_args(["--algo", "A2C"])
+    assert default_out == Path("runs") / "ppo_SeagulAcrobot-v0"
+    view, _ = config_from_args(["--env-id", "SeagulGlider-v0", "--view-overrides", '{"end_scale": 4.0}', "--progress"])
+    assert (view.env_id, view.view_overrides, view.progress, view.algo_overrides) == (
+        "SeagulGlider-v0",
+        {"end_scale": 4.0},
+        True,
+        {},
+    )
+
+
+@pytest.mark.parametrize(
+    "argv, message",
+    [
+        (["--algo", "A2C"], "invalid choice 'A2C'"),
+        (["--algo-overrides", "[1]"], "expected a JSON object"),
+        (["--algo-overrides", "{bad"], "not valid JSON"),
+        (["--view-overrides", "3"], "expected a JSON object"),
+        (["--n-validation", "0"], "n_validation must be >= 1"),
+        (["--algo-overrides", '{"policy": "CnnPolicy"}'], "algo_overrides cannot set"),
+    ],
+)
+def test_a_bad_command_line_exits_with_status_2_naming_the_problem(argv, message, capsys):
+    """Bad flags and values (the config's own checks included) are command-line errors, not tracebacks."""
+    with pytest.raises(SystemExit) as exc:
+        config_from_args(argv)
+    assert exc.value.code == 2
+    assert message in " ".join(capsys.readouterr().err.replace("│", " ").split())
+
+
+def test_the_help_lists_every_config_field_as_a_flag(capsys):
+    with pytest.raises(SystemExit) as exc:
+        config_from_args(["--help"], description="Train one.")
+    assert exc.value.code == 0
+    out = capsys.readouterr().out
+    flags = [f"--{f.name.replace('_', '-')}" for f in fields(SB3Config)]
+    assert all(flag in out for flag in [*flags, "--out", "--test"]), out
+    assert "Train one." in out and "--algo-overrides JSON" in out
 
 
 def test_zero_input_floor_and_heldout_starts():

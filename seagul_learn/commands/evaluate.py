@@ -81,8 +81,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def specs_from_args(args: argparse.Namespace) -> list[Any]:
-    """The :class:`~seagul_control.evaluation.PolicySpec` list the arguments ask for."""
-    from seagul_control.evaluation import PolicySpec
+    """The :class:`~seagul_control.policy_kinds.PolicySpec` list the arguments ask for."""
+    from seagul_control.policy_kinds import PolicySpec
 
     if len(args.label) > len(args.network):
         raise ValueError(f"--label given {len(args.label)} times but --network only {len(args.network)} times")
@@ -117,7 +117,8 @@ def specs_from_args(args: argparse.Namespace) -> list[Any]:
 
 def run(args: argparse.Namespace) -> int:
     """Evaluate, write the tables and figures, print one line per policy; the last line is the output directory."""
-    from seagul_control.evaluation import evaluate, start_grid
+    from seagul_control.evaluation import evaluate
+    from seagul_control.starts import start_grid
     from seagul_envs import resolve_task
     from seagul_learn.report import summarize, write_outputs
 

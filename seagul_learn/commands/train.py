@@ -32,7 +32,7 @@ from typing import Any
 from seagul_envs import available_tasks
 from seagul_learn.cli import Command
 from seagul_learn.commands._args import task_argument
-from seagul_learn.commands._config import json_value
+from seagul_learn.commands._json import json_value
 
 RECIPE_ALIASES = {"task": "default"}
 """``--recipe`` spellings of earlier versions: ``task`` is now the ``default`` recipe."""
