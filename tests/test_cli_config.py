@@ -4,22 +4,18 @@ dataclass; the established option spellings still parse."""
 from __future__ import annotations
 
 import argparse
+import ast
 import dataclasses
+import inspect
 import re
+import textwrap
 import warnings
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any
 
 import pytest
 
 from seagul_learn.cli import build_parser, discover_commands
-from seagul_learn.commands._config import (
-    Option,
-    add_dataclass_arguments,
-    dataclass_from_args,
-    field_docstrings,
-    plain_text,
-)
 from seagul_learn.commands.train import SAMPLER_WORDS, config_flags
 from seagul_learn.experiment import ExperimentConfig
 from seagul_learn.training import (
@@ -68,6 +64,39 @@ def _quiet(**kwargs: Any) -> TrainConfig:
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)
         return TrainConfig(**kwargs)
+
+
+def field_docstrings(cls: type) -> dict[str, str]:
+    """The string literal right below each annotated field of the dataclass ``cls`` and its dataclass bases (what tyro
+    prints as the flag's help), cleaned by :func:`inspect.cleandoc`."""
+    docs: dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        if not dataclasses.is_dataclass(klass):
+            continue
+        node = ast.parse(textwrap.dedent(inspect.getsource(klass))).body[0]
+        assert isinstance(node, ast.ClassDef)
+        for stmt, following in zip(node.body, node.body[1:], strict=False):
+            doc = (
+                following.value.value
+                if isinstance(following, ast.Expr) and isinstance(following.value, ast.Constant)
+                else None
+            )
+            if isinstance(stmt, ast.AnnAssign) and isinstance(stmt.target, ast.Name) and isinstance(doc, str):
+                docs[stmt.target.id] = inspect.cleandoc(doc)
+    return docs
+
+
+def _role_text(match: re.Match[str]) -> str:
+    content = match.group(1)
+    if "<" in content:
+        return content.split("<", 1)[0].strip()
+    return content[1:].rsplit(".", 1)[-1] if content.startswith("~") else content
+
+
+def plain_text(doc: str) -> str:
+    """A docstring as one line of plain text: reST roles and literals unwrapped, whitespace collapsed."""
+    text = re.sub(r"``(.+?)``", r"\1", re.sub(r":[\w:.-]+:`([^`]+)`", _role_text, doc))
+    return " ".join(text.split())
 
 
 def _help(capsys, *argv: str) -> str:
@@ -359,144 +388,6 @@ def test_every_reproduce_flag_help_prints_is_documented(capsys):
 
 def test_every_command_still_builds():
     assert {c.name for c in discover_commands()} >= {"evaluate", "generate", "reproduce", "train"}
-
-
-# ------------------------------------------------------------------------------------------------ the helper
-@dataclasses.dataclass
-class _Example:
-    """A config exercising every supported annotation."""
-
-    count: int = 3
-    """How many (``count``, see :class:`~seagul_learn.training.TrainConfig`)."""
-    rate: float = 0.5
-    """Share in %, see :mod:`seagul_learn.training`."""
-    name: str = "a"
-    mode: Literal["fast", "slow"] = "fast"
-    """Speed."""
-    flag: bool = False
-    """Whether to."""
-    widths: tuple[int, ...] = (4, 4)
-    """Widths."""
-    weights: tuple[float, ...] = ()
-    """Weights."""
-    pair: tuple[int, int] = (1, 2)
-    """Exactly two."""
-    tags: list[str] = dataclasses.field(default_factory=list)
-    """Tags."""
-    extra: dict[str, Any] | None = None
-    """Extra options."""
-    limit: int | None = None
-    """Optional limit."""
-    path: Path = Path("out")
-    """Where."""
-    hidden_field: int = dataclasses.field(default=7, init=False)
-    """Not an init field."""
-
-
-def _example_parser(**kwargs: Any) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="example")
-    add_dataclass_arguments(parser, _Example, **kwargs)
-    return parser
-
-
-def test_helper_types_from_annotations():
-    parser = _example_parser()
-    assert dataclass_from_args(_Example, parser.parse_args([])) == _Example()
-    args = parser.parse_args(
-        ["--count", "5", "--rate", "1e-2", "--name", "b", "--mode", "slow", "--flag", "--widths", "8,16,8",
-         "--weights", "0.5, 1.5", "--pair", "3,4", "--tags", "x,y", "--extra", '{"k": [1]}', "--limit", "9",
-         "--path", "p/q"]
-    )  # fmt: skip
-    assert dataclass_from_args(_Example, args) == _Example(
-        5, 0.01, "b", "slow", True, (8, 16, 8), (0.5, 1.5), (3, 4), ["x", "y"], {"k": [1]}, 9, Path("p/q")
-    )
-    assert dataclass_from_args(_Example, parser.parse_args(["--widths", ""])).widths == ()
-    assert not hasattr(parser.parse_args([]), "hidden_field")
-
-
-@pytest.mark.parametrize(
-    ("argv", "message"),
-    [
-        (["--count", "2.5"], "argument --count: expected an integer, got '2.5'"),
-        (["--rate", "x"], "argument --rate: expected a number, got 'x'"),
-        (["--mode", "medium"], "argument --mode: invalid choice: 'medium'"),
-        (["--widths", "4,a"], "argument --widths: expected comma-separated integers like 32,32, got '4,a'"),
-        (["--pair", "1,2,3"], "argument --pair: expected 2 comma-separated integers, got '1,2,3'"),
-        (["--extra", "[1]"], "argument --extra: expected a JSON object"),
-        (["--extra", "{x"], "argument --extra: not valid JSON"),
-    ],
-)
-def test_helper_errors_name_the_option(argv, message, capsys):
-    with pytest.raises(SystemExit):
-        _example_parser().parse_args(argv)
-    assert message in capsys.readouterr().err
-
-
-def test_helper_docstrings_and_help():
-    docs = field_docstrings(_Example)
-    assert "name" not in docs and "hidden_field" in docs  # no literal below ``name``
-    assert docs["count"] == "How many (``count``, see :class:`~seagul_learn.training.TrainConfig`)."
-    assert plain_text(docs["count"]) == "How many (count, see TrainConfig)."
-    assert plain_text(docs["rate"]) == "Share in %, see seagul_learn.training."
-    assert plain_text(":data:`the presets <seagul_learn.experiment.PRESETS>`\n   here") == "the presets here"
-    parser = _example_parser()
-    helps = _actions_by_dest(parser)
-    assert helps["rate"].help == "Share in %%, see seagul_learn.training. (default: 0.5)"
-    assert helps["name"].help == "default: a"
-    assert helps["flag"].help == "Whether to. (default: false)"
-    assert helps["limit"].help == "Optional limit."
-    assert helps["extra"].help == "Extra options."
-    assert "Share in %, see" in parser.format_help()  # the escaped % formats
-
-
-def test_helper_options_refine_fields():
-    parser = _example_parser(
-        options={
-            "count": Option(aliases=("-c", "--n"), default=10),
-            "name": Option(required=True, help="the name", choices=("a", "b")),
-            "limit": Option(type=lambda v: int(v) * 2, note="doubled"),
-        },
-        exclude=("path",),
-    )
-    args = parser.parse_args(["--name", "b", "-c", "4", "--limit", "3"])
-    assert dataclass_from_args(_Example, args) == _Example(count=4, name="b", limit=6)
-    assert dataclass_from_args(_Example, parser.parse_args(["--name", "a", "--n", "1"])).count == 1
-    assert dataclass_from_args(_Example, parser.parse_args(["--name", "a"]), count=0).count == 0
-    assert parser.parse_args(["--name", "a"]).count == 10
-    assert not hasattr(parser.parse_args(["--name", "a"]), "path")
-    helps = _actions_by_dest(parser)
-    assert helps["count"].help.endswith("(also: -c, --n) (default: 10)")
-    assert helps["name"].help == "the name" and helps["limit"].help == "Optional limit. (doubled)"
-    assert "[--n " not in parser.format_usage() and "[-c " not in parser.format_usage()
-    assert "[--pair A,B]" in parser.format_usage()
-
-
-def test_helper_rejects_what_it_cannot_declare():
-    with pytest.raises(ValueError, match=r"no fields \['nope'\]"):
-        _example_parser(options={"nope": Option()})
-
-    @dataclasses.dataclass
-    class Odd:
-        value: set[int] = dataclasses.field(default_factory=set)
-
-    with pytest.raises(TypeError, match="no command-line parser"):
-        add_dataclass_arguments(argparse.ArgumentParser(), Odd)
-
-
-def test_a_new_field_needs_no_cli_edit():
-    """A field added to a config is an option without touching the command (here: a subclass with one more)."""
-
-    @dataclasses.dataclass
-    class Wider(_Example):
-        depth: int = 2
-        """Layers."""
-
-    parser = argparse.ArgumentParser()
-    add_dataclass_arguments(parser, Wider)
-    config = dataclass_from_args(Wider, parser.parse_args(["--depth", "5", "--count", "1"]))
-    assert config.depth == 5 and config.count == 1
-    assert _actions_by_dest(parser)["depth"].help == "Layers. (default: 2)"
-    assert _actions_by_dest(parser)["count"].help.startswith("How many")  # inherited docstrings
 
 
 def test_every_train_flag_help_prints_is_documented(capsys):
