@@ -26,6 +26,7 @@ import casadi as ca
 import numpy as np
 import scipy.linalg
 
+from seagul_control.transcription import Transcription, TranscriptionOptions
 from seagul_envs.tasks.base import Task
 
 #: Format tag of :meth:`LQRPolicy.save` files.
@@ -189,6 +190,7 @@ class LQRPolicy:
         """Write the policy to one zip file: ``data.json`` (``{"format": "seagul-lqr", "version": 1, "class", "dt",
         "Q", "R", "time_varying", "task_name", "task_fingerprint", "seagul_version"}``), the gains
         (``gains.npy``) and a given nominal trajectory (``nominal.npz``); returns the path."""
+        # seagul_control.mpc (its base module) imports this module at module level: import cycle.
         from seagul_control.mpc.saving import FORMAT_VERSION, seagul_version, write_archive
 
         Q, R, nominal = self._given
@@ -251,8 +253,6 @@ def solve_nominal(
     task: Task, dt: float, x_init: np.ndarray | None = None, tau: float | None = None
 ) -> NominalTrajectory:
     """One full-horizon solve (fixed step ``dt``, the task's terminal box) from the centre of X0 at nominal ``tau``."""
-    from seagul_control.transcription import Transcription, TranscriptionOptions
-
     x_init = 0.5 * (task.x0_low + task.x0_high) if x_init is None else np.asarray(x_init, dtype=float)
     tau = task.tau_nominal if tau is None else float(tau)
     n = max(1, round(tau / dt))

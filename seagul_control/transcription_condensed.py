@@ -23,6 +23,8 @@ from typing import TYPE_CHECKING, Any
 import casadi as ca
 import numpy as np
 
+from seagul_control.shooting import BufferedFunction, ShootingSolver, condensation_problems
+
 if TYPE_CHECKING:
     from seagul_control.transcription import TranscriptionSolution
     from seagul_envs.tasks.base import Task
@@ -68,8 +70,6 @@ class CondensedSolveMixin:
     ) -> None:
         """The condensed problem ``J(U; p)`` of the same NLP and its :class:`~seagul_control.shooting.ShootingSolver`
         (``solver="shooting"``; module docstring of :mod:`seagul_control.shooting`)."""
-        from seagul_control.shooting import BufferedFunction, ShootingSolver, condensation_problems
-
         task, n = self.task, self.horizon
         problems = condensation_problems(
             task, free_time=self.free_time, final_box=self.final_box, soft_bounds=self.soft_bounds_weight is not None
@@ -109,7 +109,8 @@ class CondensedSolveMixin:
         name += "_model" if terminal_model is not None else ""
         if codegen:
             try:
-                # Looked up on the transcription module, where callers (and tests) may replace it.
+                # Looked up on the transcription module, where callers (and tests) may replace it; imported here
+                # because that module imports this one at module level (import cycle).
                 from seagul_control import transcription
 
                 self.codegen_library = transcription.compile_nlp_library(
@@ -204,7 +205,7 @@ class CondensedSolveMixin:
     ) -> TranscriptionSolution:
         """:meth:`solve` with ``solver="shooting"``: the inputs of ``w0`` start the condensed solve; the result is
         laid out as the lifted NLP's (states rolled out, multipliers from the costates)."""
-        from seagul_control.transcription import TranscriptionSolution
+        from seagul_control.transcription import TranscriptionSolution  # import cycle, as above
 
         start = time.perf_counter()
         u_idx = np.concatenate(self._u_idx)

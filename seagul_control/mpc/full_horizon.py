@@ -11,6 +11,7 @@ import numpy as np
 from seagul_control._options import merge_deprecated
 from seagul_control.mpc.base import _MPCBase, _Problem
 from seagul_control.mpc.options import FullHorizonOptions
+from seagul_control.mpc.saving import load_mpc, save_mpc
 from seagul_envs.tasks.base import Task
 
 
@@ -98,15 +99,11 @@ class FullHorizonMPC(_MPCBase):
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the controller to one zip file (options, horizon, the task's fingerprint); returns the path."""
-        from seagul_control.mpc.saving import save_mpc
-
         return save_mpc(self, path)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str], task: Task | None = None) -> FullHorizonMPC:
         """Rebuild a controller written by :meth:`save` (``task``: default ``make_task`` of the stored name)."""
-        from seagul_control.mpc.saving import load_mpc
-
         mpc = load_mpc(path, task)
         if not isinstance(mpc, cls):
             raise ValueError(f"{os.fspath(path)!r} holds a {type(mpc).__name__}, not a {cls.__name__}")

@@ -18,7 +18,9 @@ from seagul_control._options import merge_deprecated
 from seagul_control.estimation import ParameterEstimator
 from seagul_control.mpc.base import _TIME_EPS, MPCStepInfo, _Problem
 from seagul_control.mpc.options import MPCOptions, SolverName, TrustRegion
+from seagul_control.mpc.saving import load_mpc, save_mpc
 from seagul_control.mpc.terminal_cost import TerminalCostMPC, _taylor_forms
+from seagul_control.shooting import condensation_problems
 from seagul_control.value_function import CasadiValueFunction
 from seagul_envs.tasks.base import Task
 
@@ -231,8 +233,6 @@ class LimitedLookaheadMPC(TerminalCostMPC):
         """``"shooting"`` for a short fixed-step lookahead of a task with input bounds only (the acrobot: the same
         NLP ~10x faster per step, docs/experiments/mpc.md), else as :meth:`_MPCBase.default_solver` (fatrop; IPOPT for
         free time)."""
-        from seagul_control.shooting import condensation_problems
-
         # The lookahead never imposes the terminal box (final_box=False) and has hard bounds.
         problems = condensation_problems(self.task, free_time=free_time, final_box=False, soft_bounds=False)
         condensable = not problems and self.horizon <= self.SHOOTING_MAX_HORIZON
@@ -340,16 +340,12 @@ class LimitedLookaheadMPC(TerminalCostMPC):
 
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the controller to one zip file (:func:`seagul_control.mpc.saving.save_mpc`); returns the path."""
-        from seagul_control.mpc.saving import save_mpc
-
         return save_mpc(self, path)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str], task: Task | None = None) -> LimitedLookaheadMPC:
         """Rebuild a controller written by :meth:`save`, without torch (:func:`seagul_control.mpc.saving.load_mpc`;
         ``task``: default ``seagul_envs.make_task`` of the stored name; its fingerprint must match)."""
-        from seagul_control.mpc.saving import load_mpc
-
         mpc = load_mpc(path, task)
         if not isinstance(mpc, cls):
             raise ValueError(f"{os.fspath(path)!r} holds a {type(mpc).__name__}, not a {cls.__name__}")

@@ -30,6 +30,7 @@ import os
 import tempfile
 import zipfile
 from collections.abc import Mapping
+from importlib.metadata import PackageNotFoundError, version
 from pathlib import Path
 from typing import Any
 
@@ -37,6 +38,8 @@ import casadi as ca
 import numpy as np
 
 from seagul_control.io import atomic_write_bytes
+from seagul_control.mpc.options import FullHorizonOptions, MPCOptions
+from seagul_envs import make_task
 from seagul_envs.tasks.base import Task
 
 FORMAT_TAG = "seagul-mpc"
@@ -50,8 +53,6 @@ _NETWORK_FILE = f"{_VF_DIR}/network.pt"
 # ---------------------------------------------------------------------------------------------- the archive
 def seagul_version() -> str:
     """The installed seagul distribution's version (``"0+unknown"`` when it is not installed)."""
-    from importlib.metadata import PackageNotFoundError, version
-
     try:
         return version("seagul")
     except PackageNotFoundError:
@@ -117,8 +118,6 @@ def resolve_saved_task(data: Mapping[str, Any], task: Task | None, path: str | o
         ValueError: the fingerprints differ (the message names both and what to do).
     """
     if task is None:
-        from seagul_envs import make_task
-
         task = make_task(str(data["task_name"]))
     stored, actual = str(data["task_fingerprint"]), task.fingerprint()
     if stored != actual:
@@ -299,6 +298,7 @@ def save_mpc(mpc: Any, path: str | os.PathLike[str]) -> Path:
     Raises:
         ValueError: a setting is not JSON-serialisable (e.g. an exotic ``solver_options`` value).
     """
+    # The controller modules import this one at module level (their save/load methods): import cycle.
     from seagul_control.mpc.full_horizon import FullHorizonMPC
     from seagul_control.mpc.lookahead import LimitedLookaheadMPC
 
@@ -340,7 +340,6 @@ def load_mpc(path: str | os.PathLike[str], task: Task | None = None) -> Any:
     """
     from seagul_control.mpc.full_horizon import FullHorizonMPC
     from seagul_control.mpc.lookahead import LimitedLookaheadMPC
-    from seagul_control.mpc.options import FullHorizonOptions, MPCOptions
 
     data, members = read_archive(path, FORMAT_TAG)
     task = resolve_saved_task(data, task, path)

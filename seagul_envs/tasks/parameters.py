@@ -166,8 +166,6 @@ def parametric_dynamics(
     """``f(x, u, theta)`` from the task's own model code ``xdot(x, u, p)``: ``p`` is ``params`` with the fields
     ``names`` replaced by the entries of an SX symbol ``theta``, so the parametric and the nominal dynamics are the
     same expressions (one home for the model)."""
-    import dataclasses
-
     x = ca.SX.sym("x", nx)
     u = ca.SX.sym("u", nu)
     theta = ca.SX.sym("theta", len(names))

@@ -20,6 +20,7 @@ import dataclasses
 import itertools
 import math
 import operator
+import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
 from typing import TYPE_CHECKING, Any, Literal
@@ -289,8 +290,6 @@ class _MovedToRecipes:
         if value is None or isinstance(value, _MovedToRecipes):  # not given (the dataclass passes its default)
             obj.__dict__.pop(self.private, None)
             return
-        import warnings
-
         warnings.warn(
             f"TaskProfile({self.name}=...) is deprecated; put the task's {self.name} in a recipe file "
             f"(seagul_learn.recipes.register) and use {_MOVED[self.name]}",
@@ -316,15 +315,14 @@ class _RecipeView(Mapping[str, Any]):
 
     def _load(self) -> dict[str, Any]:
         if self._data is None:
-            import warnings
-
             warnings.warn(
                 f"TaskProfile.{self.name} is deprecated (the data moved out of the task profile); use "
                 f"{_MOVED[self.name]}",
                 DeprecationWarning,
                 stacklevel=3,
             )
-            from seagul_learn.recipes import legacy_profile_data  # the deprecated path only
+            # The upper layer's data, for the deprecated path only: seagul_envs must import without seagul_learn.
+            from seagul_learn.recipes import legacy_profile_data
 
             self._data = legacy_profile_data(self.book, self.name)
         return self._data
@@ -555,8 +553,6 @@ def __getattr__(name: str) -> Any:
     """``DEFAULT_PRESETS`` and ``SMOKE_TRAIN_OVERRIDES``: deprecated, the data is in
     ``seagul_learn/recipes/default.yml``."""
     if name in ("DEFAULT_PRESETS", "SMOKE_TRAIN_OVERRIDES"):
-        import warnings
-
         from seagul_learn.recipes import legacy_profile_data  # the deprecated path only
 
         warnings.warn(
