@@ -31,6 +31,9 @@ import sys
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import seagul_learn.commands
+from seagul_learn import __version__
+
 
 @dataclass(frozen=True)
 class Command:
@@ -52,9 +55,8 @@ class Command:
 
 def discover_commands() -> list[Command]:
     """Every ``COMMAND`` defined by a public module of :mod:`seagul_learn.commands`, by module name."""
-    import seagul_learn.commands as package
-
     commands: list[Command] = []
+    package = seagul_learn.commands
     for info in sorted(pkgutil.iter_modules(package.__path__), key=lambda m: m.name):
         if info.name.startswith("_"):
             continue
@@ -71,8 +73,6 @@ def build_parser(commands: Sequence[Command] | None = None) -> argparse.Argument
         prog="seagul",
         description="Learn value functions from trajectory optimization with adversarial sampling (SEAGuL).",
     )
-    from seagul_learn import __version__
-
     parser.add_argument("--version", action="version", version=f"%(prog)s {__version__}")
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     for command in commands if commands is not None else discover_commands():

@@ -55,8 +55,12 @@ from dataclasses import asdict, dataclass
 from typing import Any, ClassVar, Literal
 
 import numpy as np
+from scipy.spatial import cKDTree
 
+from seagul_control.evaluation import default_horizon, run_policy_episode, sample_grid_slice
+from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
 from seagul_envs import Task
+from seagul_learn import member_selection
 from seagul_learn.dataset import SolveRecord, TrainingArrays
 from seagul_learn.samplers import SamplerOptions, StartPool
 from seagul_learn.solving import SolveRunner, tail_horizon
@@ -209,8 +213,6 @@ def collect_queries(
     carries the robot its plan was made for (``MPCStepInfo.terminal_theta``). ``record_visited`` (fixed-step tasks):
     also the states each episode visited before its steps, with their times to go ``tau_nominal - t h``.
     """
-    from seagul_control.evaluation import run_policy_episode
-
     starts = np.atleast_2d(starts)
     if robots is not None and len(robots) != starts.shape[0]:
         raise ValueError(f"collect_queries: {len(robots)} robots for {starts.shape[0]} starts")
@@ -264,8 +266,6 @@ def farthest_first(candidates: np.ndarray, known: np.ndarray, k: int) -> np.ndar
 
     Distances are Euclidean in the given coordinates; ties go to the lowest index (deterministic).
     """
-    from scipy.spatial import cKDTree
-
     n = candidates.shape[0]
     k = min(int(k), n)
     if k <= 0:
@@ -343,9 +343,6 @@ class ClosedLoopSampler:
     # ------------------------------------------------------------------------------------ MPC
     def collector(self, network: ValueModel) -> Any:
         """The MPC that collects this round's queries (built once per guard, then only re-parameterised)."""
-        from seagul_control.evaluation import default_horizon
-        from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
-
         guard = "lqr" if self.loop_rounds < self.options.warmup_rounds else self.deployed_guard
         horizon = self.options.horizon or default_horizon(self.task)
         mpc = self._mpcs.get(guard)
@@ -374,8 +371,6 @@ class ClosedLoopSampler:
     def episode_starts(self) -> np.ndarray:
         """This round's training starts: uniform over X0 (their own random stream), ``slice_fraction`` of them on
         the grid's slice instead (another stream), those last."""
-        from seagul_control.evaluation import sample_grid_slice
-
         n = self.options.episodes
         on_slice = round(self.options.slice_fraction * n)
         rng = np.random.default_rng([self.seed, _STREAM_EPISODE_STARTS, self.round])
@@ -445,8 +440,6 @@ class ClosedLoopSampler:
             spread = network.spread(queries.x[eligible], queries.tau[eligible], theta)
             picks = np.argsort(-spread, kind="stable")[: min(k, eligible.size)]
         elif method == "lowest" and known.shape[0]:
-            from scipy.spatial import cKDTree
-
             _, nearest = cKDTree(known).query(cand, k=1)
             vhat = network.predict(queries.x[eligible], queries.tau[eligible], theta)
             # How far below its nearest known label the network rates the query, farthest-first among ties.
@@ -601,7 +594,5 @@ def __getattr__(name: str) -> Any:
     """``select_members``, ``MemberSelection`` and ``_selection_starts`` live in :mod:`seagul_learn.member_selection`
     (the closed-loop selection of a refit's members); these names keep working here."""
     if name in ("select_members", "MemberSelection", "_selection_starts"):
-        from seagul_learn import member_selection
-
         return getattr(member_selection, name)
     raise AttributeError(f"module {__name__!r} has no attribute {name!r}")

@@ -9,11 +9,16 @@ that matters, at no NLP solve, on training starts drawn from X0 (never an evalua
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
 import numpy as np
+from tqdm import tqdm
 
+from seagul_control import evaluation
+from seagul_control.evaluation import default_horizon, sample_grid_slice
+from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
 from seagul_envs import Task
 from seagul_learn.value_network import ValueEnsemble
 
@@ -60,8 +65,6 @@ def _selection_starts(task: Task, n: int, seed: int, stream: int, slice_stream: 
     """``n`` selection starts: ``round(fraction * n)`` on the grid's slice
     (:func:`seagul_control.evaluation.sample_grid_slice`, stream
     ``[seed, slice_stream]``), the rest uniform over X0 (stream ``[seed, stream]``)."""
-    from seagul_control.evaluation import sample_grid_slice
-
     on_slice = round(float(fraction) * int(n))
     parts = [task.sample_x0(np.random.default_rng([int(seed), stream]), int(n) - on_slice)]
     if on_slice:
@@ -97,11 +100,6 @@ def select_members(
     slice of X0 instead (``seagul_control.evaluation.sample_grid_slice``, streams ``[seed, 18]`` and ``[seed, 19]``):
     the acrobot's grid starts at rest, a 2-D slice that uniform draws over the 4-D X0 rarely come near.
     """
-    import itertools
-
-    from seagul_control.evaluation import default_horizon, run_policy_episode
-    from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
-
     k = len(candidates.members)
     if not 2 <= int(size) <= k:
         raise ValueError(f"select_members: size must be in 2..{k} (the candidates' members), got {size}")
@@ -130,9 +128,8 @@ def select_members(
             )
         else:
             mpc.set_value_function(ensemble)
-        return sum(int(run_policy_episode(task, mpc, x0)[0].success) for x0 in starts)
-
-    from tqdm import tqdm
+        # Looked up on the module, so that a replacement of seagul_control.evaluation.run_policy_episode is used.
+        return sum(int(evaluation.run_policy_episode(task, mpc, x0)[0].success) for x0 in starts)
 
     first = _selection_starts(task, int(episodes), seed, _STREAM_SELECT_STARTS, _STREAM_SELECT_SLICE, slice_fraction)
     counts = {s: wins(s, first) for s in tqdm(subsets, desc="member selection", unit="subset", disable=not progress)}

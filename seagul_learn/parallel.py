@@ -29,10 +29,14 @@ from concurrent.futures import FIRST_COMPLETED, Future, wait
 from typing import Any
 
 import numpy as np
+from cloudpickle import register_pickle_by_value
+from joblib.externals.loky import ProcessPoolExecutor
+from tqdm.auto import tqdm
 
-from seagul_envs.tasks import make_task, resolve_task
+from seagul_envs.tasks import file_task_modules, make_task, resolve_task
 from seagul_envs.tasks.base import Task
 from seagul_learn.results import SolveResult
+from seagul_learn.trajopt import TrajectoryOptimizer, TrajOptConfig
 
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS", "NUMEXPR_NUM_THREADS")
 
@@ -69,8 +73,6 @@ def _optimizer(task: Task, frozen: Frozen, fingerprint: str | None = None) -> An
                 f"task {task.name!r} changed on its way to this worker (fingerprint {task.fingerprint()} here, "
                 f"{fingerprint} in the caller): some field of it does not survive pickling"
             )
-        from seagul_learn.trajopt import TrajectoryOptimizer
-
         options: dict[str, Any] = {
             k: (dict(v) if k == "solver_options" and isinstance(v, tuple) else v) for k, v in frozen
         }
@@ -157,8 +159,6 @@ def _check_thetas(task: Task, thetas: np.ndarray, n: int) -> np.ndarray:
 
 
 def _progress(total: int, enabled: bool, desc: str) -> Any:
-    from tqdm.auto import tqdm
-
     return tqdm(total=total, disable=not enabled, desc=desc, unit="solve", smoothing=0.05)
 
 
@@ -217,8 +217,6 @@ def solve_many(
     if workers < 1:
         raise ValueError(f"workers must be >= 1, got {workers}")
     # Fail fast (in this process) on bad options rather than inside every worker.
-    from seagul_learn.trajopt import TrajOptConfig
-
     TrajOptConfig().with_updates(**options).validate()
     if n == 0:
         return []
@@ -246,8 +244,6 @@ def _local_pool(workers: int) -> Any:
     one: joblib's ``Parallel`` (used by callers, e.g. the closed-loop evaluation) takes over that singleton and fails
     on one it did not create.
     """
-    from joblib.externals.loky import ProcessPoolExecutor
-
     pool = _POOL.get("pool")
     if pool is not None and (_POOL.get("workers") != workers or pool._flags.broken or pool._flags.shutdown):
         pool.shutdown(wait=False)
@@ -276,10 +272,6 @@ def _solve_local(
     # A module that load_task read from a file after the pool's workers started is on no worker's sys.path (a worker
     # inherits the path at its start, and the pool outlives calls): its classes and functions travel by value, as
     # on Ray (loky pickles with cloudpickle, as the closed-loop evaluation's workers do).
-    from cloudpickle import register_pickle_by_value
-
-    from seagul_envs.tasks import file_task_modules
-
     for module in file_task_modules():
         register_pickle_by_value(module)
     with _progress(n, progress, f"{task.name} solves x{workers}") as bar:
@@ -402,7 +394,7 @@ def _solve_ray(
     address: str | None,
     thetas: np.ndarray | None = None,
 ) -> list[SolveResult]:
-    try:
+    try:  # an optional dependency (the ray extra): imported only for backend='ray'
         import ray
     except ImportError as err:
         raise ImportError(
@@ -418,8 +410,6 @@ def _solve_ray(
     in_flight: dict[Any, tuple[int, np.ndarray]] = {}
     # A module that load_task read from a file (``--task path/file.py:factory``) is on no Ray worker's path: its
     # classes and functions in the task (e.g. the parameter dataclass) travel by value.
-    from seagul_envs.tasks import file_task_modules
-
     for module in file_task_modules():
         ray.cloudpickle.register_pickle_by_value(module)
     task_ref = ray.put(task)  # serialised once per call; Ray hands the actors the Task itself

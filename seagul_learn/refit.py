@@ -24,6 +24,7 @@ from seagul_envs import Task
 from seagul_learn.config import TrainConfig
 from seagul_learn.dataset import TrainingArrays
 from seagul_learn.fitting import STREAM_REFIT_BATCHES, Trainer, capped, make_network, rng
+from seagul_learn.member_selection import select_members
 from seagul_learn.value_network import ValueEnsemble, ValueModel, ValueNetwork
 
 
@@ -90,8 +91,6 @@ def refit_and_select(
     ``network_candidates.pt``, and return the ``refit.ensemble`` of them whose deployed MPC succeeds most often on
     ``selection.episodes`` training starts (:func:`seagul_learn.member_selection.select_members`; the scores go to
     ``network_selection.json``). Deterministic (the refit, the starts and the MPC are)."""
-    from seagul_learn.member_selection import select_members
-
     # The candidates' refit is deterministic: a run interrupted during the selection reuses the stored one when it
     # was made with the same settings from the same buffer.
     key = candidates_key(config, buffer)

@@ -32,17 +32,16 @@ import re
 from collections.abc import Sequence
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import Any
 
 import numpy as np
+from PIL import Image, ImageDraw
 
-from seagul_control._io import atomic_write_text
+from seagul_control._io import atomic_write_bytes, atomic_write_text
+from seagul_control.evaluation import EpisodeResult, run_policy_episode
 from seagul_envs.tasks import resolve_task
 from seagul_envs.tasks.base import Task
 from seagul_envs.tasks.profile import TrajectoryPlot
-
-if TYPE_CHECKING:
-    from seagul_control.evaluation import EpisodeResult
 
 GLIDER_TRAJECTORY_PLOT = TrajectoryPlot(
     axes=(0, 1), labels=("x (m)", "z (m)"), goal_label="perch", title="glider trajectories (o = perched, x = missed)"
@@ -146,11 +145,6 @@ def controller_animation(
     early holds its last frame. ``fps`` defaults to the env's control rate (real time). Written atomically.
     Returns the path and the episodes (for captions and tables).
     """
-    from PIL import Image, ImageDraw
-
-    from seagul_control._io import atomic_write_bytes
-    from seagul_control.evaluation import run_policy_episode
-
     task = resolve_task(task)
     if not policies:
         raise ValueError("controller_animation needs at least one (label, policy) pair")
@@ -204,6 +198,7 @@ def plot_heatmaps(task: Task | str, results: Sequence[EpisodeResult], grid: dict
     acrobot, trajectory cost for the glider)."""
     task = resolve_task(task)
     task_name = task.name
+    # matplotlib only when a figure is drawn: it is slow to import and selects its backend (Agg) on first use.
     import matplotlib
 
     matplotlib.use("Agg")

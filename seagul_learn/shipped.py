@@ -26,6 +26,7 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
+from seagul_control.evaluation import PolicySpec
 from seagul_envs import Task, available_tasks, make_task, resolve_task
 
 REPO_ROOT = Path(__file__).resolve().parents[1]
@@ -83,8 +84,6 @@ class ShippedController:
 
     def spec(self, label: str = "shipped MPC", jit: bool | None = None) -> Any:
         """The deployed MPC as a :class:`~seagul_control.evaluation.PolicySpec` (built in the evaluation's workers)."""
-        from seagul_control.evaluation import PolicySpec
-
         return PolicySpec("mpc", label, str(self.network), self.options(jit))
 
     def describe(self) -> str:

@@ -25,9 +25,17 @@ from typing import Any
 
 import numpy as np
 
+import seagul_control.transcription
+import seagul_envs.tasks.acrobot
+import seagul_envs.tasks.base
+import seagul_envs.tasks.glider
+import seagul_envs.tasks.profile
+import seagul_learn.trajopt
 from seagul_control._io import atomic_write_bytes
+from seagul_envs.tasks import resolve_task
 from seagul_envs.tasks.base import Task
 from seagul_learn.dataset import Dataset, DatasetError, SolveRecord
+from seagul_learn.parallel import solve_many
 from seagul_learn.results import SolveResult
 
 BatchSolver = Callable[..., list[SolveResult]]
@@ -104,8 +112,6 @@ class TrajoptBatchSolver:
     def __call__(self, starts: np.ndarray, taus: np.ndarray, thetas: np.ndarray | None = None) -> list[SolveResult]:
         """One result per start; with ``thetas`` (one robot per start) every solve takes its robot as NLP
         parameters (``TrajOptConfig(model_params=True)``) and returns ``grad_theta`` and ``knot_grad_theta``."""
-        from seagul_learn.parallel import solve_many  # the optimizer stack is only needed when actually solving
-
         starts = np.atleast_2d(np.asarray(starts, dtype=np.float64))
         taus = np.asarray(taus, dtype=np.float64).reshape(-1)
         horizons = [tail_horizon(self.task, float(t)) for t in taus]
@@ -142,7 +148,7 @@ def trajopt_batch_solver(
     progress: bool = False,
     solver_options: dict[str, Any] | None = None,
 ) -> TrajoptBatchSolver:
-    """The real solver: ``solve_many`` on the full-horizon trajectory optimizer (imported lazily).
+    """The real solver: ``solve_many`` on the full-horizon trajectory optimizer.
 
     ``task`` is a :class:`Task` or a registered name (resolved here, once, with ``make_task``); the Task object is
     what every ``solve_many`` call (and so every worker) gets. Requests whose ``tau`` is below T0 are tail problems
@@ -153,8 +159,6 @@ def trajopt_batch_solver(
         TypeError: ``task`` is neither a Task nor a str.
         ValueError: an unknown task name or a malformed Task.
     """
-    from seagul_envs.tasks import resolve_task
-
     return TrajoptBatchSolver(
         resolve_task(task), workers=workers, backend=backend, progress=progress, solver_options=solver_options
     )
@@ -181,8 +185,6 @@ def solver_fingerprint(task: Task | str | None = None) -> str:
     code = code_fingerprint()
     if task is None:
         return code
-    from seagul_envs.tasks import resolve_task
-
     digest = hashlib.sha256(f"{code}:{resolve_task(task).fingerprint()}".encode())
     return digest.hexdigest()[:12]
 
@@ -194,13 +196,6 @@ def code_fingerprint() -> str:
 
     Computed once per process, from the files of the modules this process imported.
     """
-    import seagul_control.transcription
-    import seagul_envs.tasks.acrobot
-    import seagul_envs.tasks.base
-    import seagul_envs.tasks.glider
-    import seagul_envs.tasks.profile
-    import seagul_learn.trajopt
-
     digest = hashlib.sha256()
     for module in (
         seagul_learn.trajopt,
@@ -338,8 +333,6 @@ class CachedBatchSolver:
         self.task_fingerprint: str | None = None
         """The fingerprint of the task in every key (None: the keys are ``solver_name``, ``x`` and ``tau`` only)."""
         if task is not None:
-            from seagul_envs.tasks import resolve_task
-
             self.task_fingerprint = resolve_task(task).fingerprint()
         self.hits = 0
         self.misses = 0

@@ -57,6 +57,7 @@ import io
 import json
 import os
 import shutil
+import warnings
 from dataclasses import asdict, dataclass, field, fields, replace
 from pathlib import Path
 from typing import Any
@@ -67,6 +68,7 @@ from tqdm.auto import tqdm
 
 from seagul_control._io import atomic_write_text
 from seagul_envs import Task
+from seagul_envs.tasks import BUILTIN_TASKS, make_task
 from seagul_envs.tasks.profile import ValidationSpec
 from seagul_learn.checkpoint import CHECKPOINT_FORMAT, keep_best, load_checkpoint, save_checkpoint
 from seagul_learn.closed_loop import ClosedLoopOptions, ClosedLoopSampler
@@ -158,10 +160,6 @@ _load_checkpoint = load_checkpoint
 def __getattr__(name: str) -> Any:
     """``VALIDATION_SPECS``: a deprecated name-keyed view of the built-in tasks' validation sets."""
     if name == "VALIDATION_SPECS":
-        import warnings
-
-        from seagul_envs.tasks import BUILTIN_TASKS, make_task
-
         warnings.warn(
             "seagul_learn.training.VALIDATION_SPECS is deprecated; use task.profile.validation_spec(task)",
             DeprecationWarning,
@@ -454,6 +452,7 @@ def _write_metrics(
 
 def plot_metrics(metrics: list[Metric], path: str | os.PathLike[str], title: str = "") -> None:
     """PNG of both validation MSEs vs solves and vs training steps (matplotlib Agg, headless)."""
+    # matplotlib only when a plot is drawn: it is slow to import and selects its backend (Agg) on first use.
     import matplotlib
 
     matplotlib.use("Agg")

@@ -21,6 +21,7 @@ import dataclasses
 import functools
 import math
 import time
+import warnings
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -28,7 +29,7 @@ import casadi as ca
 import numpy as np
 
 from seagul_control.transcription import Transcription, TranscriptionOptions, TranscriptionSolution
-from seagul_envs.tasks import make_task
+from seagul_envs.tasks import BUILTIN_TASKS, make_task
 from seagul_envs.tasks.base import Task, rk4_map
 from seagul_learn.results import SolveResult
 
@@ -51,15 +52,11 @@ _DEPRECATED_VIEWS = ("TASK_DEFAULTS", "KINEMATIC_PAIRS")
 def __getattr__(name: str) -> Any:
     """``TASK_DEFAULTS`` / ``KINEMATIC_PAIRS``: deprecated name-keyed views of the built-in tasks' profiles."""
     if name in _DEPRECATED_VIEWS:
-        import warnings
-
         warnings.warn(
             f"seagul_learn.trajopt.{name} is deprecated; the defaults live on the task: task.profile.solver",
             DeprecationWarning,
             stacklevel=2,
         )
-        from seagul_envs.tasks import BUILTIN_TASKS
-
         tasks = {n: make_task(n) for n in sorted(BUILTIN_TASKS)}
         if name == "TASK_DEFAULTS":
             return {n: t.profile.solver.config_defaults() for n, t in tasks.items()}

@@ -5,7 +5,7 @@ from __future__ import annotations
 import argparse
 import math
 
-from seagul_envs import Task, available_tasks
+from seagul_envs import Task, available_tasks, load_task
 
 TASK_HELP = (
     "a task name ({names}) or module:factory, a function returning your Task (e.g. "
@@ -29,8 +29,6 @@ def task_argument(value: str) -> str | Task:
     missing factory, a factory that raises or returns something that is not a Task, a malformed Task
     (:func:`seagul_envs.load_task`).
     """
-    from seagul_envs import load_task
-
     if ":" not in value:
         return task_name(value)
     try:

@@ -19,6 +19,8 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+from seagul_control.starts import start_grid
+from seagul_envs import resolve_task
 from seagul_learn.cli import Command
 from seagul_learn.commands._args import add_task_argument, positive_int
 
@@ -82,6 +84,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def specs_from_args(args: argparse.Namespace) -> list[Any]:
     """The :class:`~seagul_control.policy_kinds.PolicySpec` list the arguments ask for."""
+    # The controller stack (casadi, the MPC, LQR) loads when the command runs: `seagul --help` stays fast.
     from seagul_control.policy_kinds import PolicySpec
 
     if len(args.label) > len(args.network):
@@ -118,8 +121,6 @@ def specs_from_args(args: argparse.Namespace) -> list[Any]:
 def run(args: argparse.Namespace) -> int:
     """Evaluate, write the tables and figures, print one line per policy; the last line is the output directory."""
     from seagul_control.evaluation import evaluate
-    from seagul_control.starts import start_grid
-    from seagul_envs import resolve_task
     from seagul_learn.report import summarize, write_outputs
 
     task = resolve_task(args.task)  # resolved once: the Task object goes to the workers

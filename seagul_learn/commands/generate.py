@@ -7,9 +7,11 @@ from pathlib import Path
 
 import numpy as np
 
+from seagul_envs import resolve_task
 from seagul_learn.cli import Command
 from seagul_learn.commands._args import add_parallel_arguments, add_task_argument, positive_int
 from seagul_learn.commands.train import json_object
+from seagul_learn.dataset import Dataset, count_failures
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -29,10 +31,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 def run(args: argparse.Namespace) -> int:
     """Solve and store; prints counts and, last, the dataset directory."""
+    # Loaded when the command runs, so that `seagul --help` stays fast: tqdm, the solver stack (casadi, the
+    # transcription) and the training module (torch).
     from tqdm.auto import tqdm
 
-    from seagul_envs import resolve_task
-    from seagul_learn.dataset import Dataset, count_failures
     from seagul_learn.solving import SolveRunner, solver_key, trajopt_batch_solver
     from seagul_learn.training import default_cache_dir, validation_dataset
 

@@ -24,15 +24,22 @@ dropped, as the old parser ignored it.
 from __future__ import annotations
 
 import argparse
+import dataclasses
 import json
 import sys
 from collections.abc import Sequence
 from typing import Any
 
+import tyro
+
 from seagul_envs import available_tasks
+from seagul_envs.tasks import task_label
 from seagul_learn.cli import Command
 from seagul_learn.commands._args import task_argument
 from seagul_learn.commands._json import json_value
+from seagul_learn.config_legacy import LEGACY_NAMES, new_name
+from seagul_learn.config_parts import SECTIONS
+from seagul_learn.recipes import recipe_names
 
 RECIPE_ALIASES = {"task": "default"}
 """``--recipe`` spellings of earlier versions: ``task`` is now the ``default`` recipe."""
@@ -85,16 +92,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 # --------------------------------------------------------------------------------------------- the old flags
 def _legacy_flags() -> dict[str, str]:
     """``--old-flag`` -> flat field name, for every flat field of earlier versions."""
-    from seagul_learn.config import LEGACY_NAMES
-
     flags = {"--" + name.replace("_", "-"): name for name in LEGACY_NAMES}
     flags["--sobolev"] = "sobolev_weight"
     return flags
 
 
 def _new_flag(name: str) -> str:
-    from seagul_learn.config import new_name
-
     return "--" + new_name(name).replace("_", "-")
 
 
@@ -102,8 +105,6 @@ def translate_legacy(argv: Sequence[str], sampler: str) -> tuple[list[str], list
     """``argv`` with the flat flags of earlier versions rewritten into the nested ones; returns the new argv and one
     ``"--old -> --new"`` note per rewritten flag (empty: nothing to say). ``sampler`` is the sampler of the starting
     config, which a flat ``--sampler NAME`` replaces; flat flags of another sampler are dropped (noted)."""
-    from seagul_learn.config import LEGACY_NAMES
-
     flags = _legacy_flags()
     args = _split_equals(argv)
     chosen = sampler
@@ -163,9 +164,8 @@ def _split_equals(argv: Sequence[str]) -> list[str]:
 
 def _is_bool_field(name: str) -> bool:
     """Whether the flat field ``name`` was a flag (``--name`` / ``--no-name``, no value)."""
-    import dataclasses
-
-    from seagul_learn.config import LEGACY_NAMES, SAMPLER_OPTIONS, SECTIONS
+    # seagul_learn.config imports torch: not at module level, so that `seagul --help` stays fast (start-up time).
+    from seagul_learn.config import SAMPLER_OPTIONS
 
     part, field_name, owner = LEGACY_NAMES[name]
     cls = SAMPLER_OPTIONS[str(owner)] if part == "sampler" else SECTIONS[str(part)]
@@ -190,10 +190,7 @@ def parse(argv: Sequence[str]) -> tuple[Any, argparse.Namespace]:
         SystemExit: bad flags (status 2, tyro's or argparse's message naming the flag) or ``--help`` (status 0).
         ValueError: a value the config refuses (naming the field), an unknown recipe, or a missing ``--task``.
     """
-    import tyro
-
     from seagul_learn.config import TrainConfig
-    from seagul_learn.recipes import recipe_names
 
     parser = run_parser()
     try:
@@ -257,7 +254,6 @@ def config_flags(argv: Sequence[str]) -> Any:
 
 def main(argv: Sequence[str]) -> int:
     """Parse, train and print a summary; the last line is the run directory."""
-    from seagul_envs.tasks import task_label
     from seagul_learn.training import train
 
     config, run = parse(argv)
