@@ -12,14 +12,12 @@ Adding a subcommand (e.g. ``evaluate``, ``reproduce``) takes one new file and no
 
 Modules are discovered in alphabetical order (files starting with ``_`` are helpers, e.g.
 :mod:`seagul_learn.commands._args` has the shared argument types: task names that list the available ones, positive
-integers, the ``--workers``/``--backend`` pair). A command whose options are the fields of a config dataclass declares
-them with :func:`seagul_learn.commands._config.add_dataclass_arguments` (one ``--field-name`` per field, typed,
-defaulted and helped by the dataclass; ``reproduce`` from ``ExperimentConfig``) and rebuilds the config with
-:func:`~seagul_learn.commands._config.dataclass_from_args`. A command whose flags another parser derives gives its
-``Command`` a ``main`` that takes its own words: ``train`` parses them with tyro from the nested ``TrainConfig``
-(``--sampler.episodes 20``), and its ``seagul`` subparser only lists its run options. Argument errors exit with status 2
-and a message naming the argument; a ``ValueError``/``FileExistsError``/``FileNotFoundError`` raised by a command is
-reported as ``seagul <command>: error: <message>`` (status 2) without a traceback; Ctrl-C exits with status 130.
+integers, the ``--workers``/``--backend`` pair). A command whose flags another parser derives gives its ``Command`` a
+``main`` that takes its own words: ``train`` and ``reproduce`` parse them with tyro from their config dataclasses
+(``TrainConfig``: ``--sampler.episodes 20``; ``ExperimentConfig``), and their ``seagul`` subparsers only list the run
+options. Argument errors exit with status 2 and a message naming the argument; a
+``ValueError``/``FileExistsError``/``FileNotFoundError`` raised by a command is reported as
+``seagul <command>: error: <message>`` (status 2) without a traceback; Ctrl-C exits with status 130.
 """
 
 from __future__ import annotations
