@@ -366,7 +366,13 @@ def test_reproduce_run_options_and_task_errors(capsys):
     assert run.out == "o" and run.task == "glider" and config.task == "glider" and config.seeds == 2
     _, run = parse(["acrobot", "--resume", "r"])
     assert run.resume == "r"
-    for argv, message in ((["--seeds", "2"], "required: TASK"), (["nosuchtask"], "unknown task 'nosuchtask'")):
+    for argv, message in (
+        (["--seeds", "2"], "required: TASK"),
+        (["nosuchtask"], "unknown task 'nosuchtask'"),
+        (["acrobot", "--backend", "dask"], "argument --backend: invalid choice: 'dask'"),
+        (["acrobot", "--methods", "uniform", "nope"], "argument --methods: unknown methods ['nope']"),
+        (["acrobot", "--methods", "uniform,uniform"], "argument --methods: a method is named twice"),
+    ):
         with pytest.raises(SystemExit) as info:
             parse(argv)
         assert info.value.code == 2

@@ -234,7 +234,9 @@ def test_a_run_stored_without_held_out_episodes_resumes_with_only_those(smoke_ru
     before = (out / "closed_loop" / "summary.json").read_text(), held.read_text(), grid.stat().st_mtime_ns
     held.unlink()
     assert main(["reproduce", "acrobot", "--resume", str(out), "--no-progress"]) == 0
-    assert held.read_text() == before[1] and grid.stat().st_mtime_ns == before[2]  # the grid episodes were reused
+    assert grid.stat().st_mtime_ns == before[2]  # the grid episodes were reused
+    again = [(e["start"], e["success"], e["steps"]) for e in json.loads(held.read_text())]
+    assert again == [(e["start"], e["success"], e["steps"]) for e in json.loads(before[1])]  # times aside
     assert (out / "closed_loop" / "summary.json").read_text() == before[0]
 
 

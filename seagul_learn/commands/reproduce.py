@@ -175,8 +175,27 @@ def parse(argv: Sequence[str]) -> tuple[Any, argparse.Namespace]:
         prog="seagul reproduce TASK",
         description=description,
     )
+    _check_choices(parser, config)
     run.task = task
     return config, run
+
+
+def _check_choices(parser: argparse.ArgumentParser, config: Any) -> None:
+    """The flags whose values are names from a fixed list fail as argparse's choices did (status 2, naming the
+    flag), before anything runs: ``--backend``, ``--sb3-algo`` and ``--methods`` (distinct known method names)."""
+    from seagul_learn.experiment import METHOD_NAMES, SB3_ALGOS
+
+    for flag, value, choices in (
+        ("--backend", config.backend, ("local", "ray")),
+        ("--sb3-algo", config.sb3_algo, SB3_ALGOS),
+    ):
+        if value not in choices:
+            parser.error(f"argument {flag}: invalid choice: {value!r} (choose from {', '.join(choices)})")
+    unknown = [m for m in config.methods if m not in METHOD_NAMES]
+    if unknown:
+        parser.error(f"argument --methods: unknown methods {unknown}; choose from {', '.join(METHOD_NAMES)}")
+    if len(set(config.methods)) != len(config.methods):
+        parser.error(f"argument --methods: a method is named twice: {' '.join(config.methods)}")
 
 
 def config_flags(argv: Sequence[str]) -> Any:
