@@ -58,13 +58,13 @@ import gymnasium as gym
 import numpy as np
 import pytest
 from gymnasium.utils.env_checker import check_env
+from result_checks import assert_same_results
 
 import seagul_envs
 from seagul_control.lqr import LQRPolicy
 from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
 from seagul_envs import Task, available_tasks, make_env, make_task, register_task, unregister_task, validate_task
 from seagul_learn.parallel import solve_many
-from seagul_learn.results import SolveResult
 from seagul_learn.trajopt import TrajectoryOptimizer
 
 REGISTERED_TASK = "<register_task>"
@@ -579,20 +579,6 @@ def test_the_lqr_reference_follows_the_predict_protocol(task: Task) -> None:
     _assert_predict_protocol(LQRPolicy(task), task)
 
 
-def _assert_same_results(a: list[SolveResult], b: list[SolveResult]) -> None:
-    """Every field of every result equal bit for bit (NaNs equal), the wall-clock ``solve_time`` excepted."""
-    assert len(a) == len(b)
-    for i, (ra, rb) in enumerate(zip(a, b, strict=True)):
-        for f in dataclasses.fields(SolveResult):
-            if f.name == "solve_time":
-                continue
-            va, vb = getattr(ra, f.name), getattr(rb, f.name)
-            if isinstance(va, np.ndarray | float):
-                np.testing.assert_array_equal(va, vb, err_msg=f"result {i}: {f.name}")
-            else:
-                assert va == vb, f"result {i}: {f.name}: {va!r} != {vb!r}"
-
-
 def _batch(task: Task) -> tuple[np.ndarray, np.ndarray]:
     """Two starts in X0 with times to go at both ends of T0 (a free final time's range): one chunk per worker."""
     starts = task.sample_x0(np.random.default_rng(11), 2)
@@ -604,13 +590,13 @@ def test_solve_many_is_bit_identical_for_one_and_two_workers(task: Task) -> None
     serial = solve_many(task, starts, taus, workers=1, progress=False, solver_options=SOLVER)
     parallel = solve_many(task, starts, taus, workers=2, progress=False, solver_options=SOLVER)
     assert all(r.success for r in serial)  # compare real solutions, not only failures
-    _assert_same_results(serial, parallel)
+    assert_same_results(serial, parallel)
     for r, x, t in zip(parallel, starts, taus, strict=True):  # input order is kept
         np.testing.assert_array_equal(r.x_init, x)
         assert r.tau == t
     # One optimizer of the user's own: the batch's first result, with finite value gradients.
     one = TrajectoryOptimizer(task, **SOLVER).solve(starts[0], taus[0])
-    _assert_same_results([one], serial[:1])
+    assert_same_results([one], serial[:1])
     assert not one.success or (np.isfinite(one.grad_x).all() and np.isfinite(one.grad_tau))
 
 
@@ -636,7 +622,7 @@ def test_solve_many_on_ray_equals_the_local_backend() -> None:
             local = solve_many(task, starts, taus, workers=1, progress=False, solver_options=SOLVER)
             remote = solve_many(task, starts, taus, workers=2, backend="ray", progress=False, solver_options=SOLVER)
             try:
-                _assert_same_results(local, remote)
+                assert_same_results(local, remote)
             except AssertionError as err:
                 raise AssertionError(f"{label}: {err}") from err
     finally:

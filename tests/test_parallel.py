@@ -2,25 +2,13 @@
 
 from __future__ import annotations
 
-import dataclasses
-
 import numpy as np
 import pytest
+from result_checks import assert_same_results
 
 from seagul_envs.tasks import make_task
 from seagul_learn.parallel import solve_many
 from seagul_learn.results import SolveResult
-
-
-def _same(a: SolveResult, b: SolveResult) -> None:
-    for f in dataclasses.fields(SolveResult):
-        if f.name == "solve_time":
-            continue
-        va, vb = getattr(a, f.name), getattr(b, f.name)
-        if isinstance(va, np.ndarray | float):
-            np.testing.assert_array_equal(va, vb, err_msg=f.name)
-        else:
-            assert va == vb, f.name
 
 
 @pytest.fixture(scope="module")
@@ -42,16 +30,13 @@ def test_serial_results_in_input_order(acrobot_starts: np.ndarray, serial: list[
 
 def test_two_workers_identical_to_serial(acrobot_starts: np.ndarray, serial: list[SolveResult]) -> None:
     parallel = solve_many("acrobot", acrobot_starts, workers=2, progress=False)
-    assert len(parallel) == len(serial)
-    for a, b in zip(serial, parallel, strict=True):
-        _same(a, b)
+    assert_same_results(serial, parallel)
 
 
 def test_reversed_input_gives_reversed_output(acrobot_starts: np.ndarray, serial: list[SolveResult]) -> None:
     """A result depends on its own input only (no warm start carried between solves)."""
     back = solve_many("acrobot", acrobot_starts[::-1], workers=2, progress=False)
-    for a, b in zip(serial[::-1], back, strict=True):
-        _same(a, b)
+    assert_same_results(serial[::-1], back)
 
 
 def test_glider_with_taus_and_options() -> None:

@@ -21,12 +21,12 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Iterator
-from dataclasses import fields
 from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
+from result_checks import assert_same_results
 
 from seagul_envs import make_task
 from seagul_learn import parallel
@@ -66,19 +66,6 @@ def local_ray() -> Any:
     return ray
 
 
-def _assert_same_results(a: list[SolveResult], b: list[SolveResult]) -> None:
-    assert len(a) == len(b)
-    for i, (ra, rb) in enumerate(zip(a, b, strict=True)):
-        for f in fields(SolveResult):
-            if f.name == "solve_time":
-                continue
-            va, vb = getattr(ra, f.name), getattr(rb, f.name)
-            if isinstance(va, np.ndarray | float):
-                np.testing.assert_array_equal(va, vb, err_msg=f"result {i}: {f.name}")
-            else:
-                assert va == vb, f"result {i}: {f.name}: {va!r} != {vb!r}"
-
-
 def _acrobot_starts(n: int) -> np.ndarray:
     return make_task("acrobot").sample_x0(np.random.default_rng(0), n)
 
@@ -92,7 +79,7 @@ def test_ray_backend_equals_local_backend(local_ray: Any, task_name: str) -> Non
     local = solve_many(task_name, starts, taus, workers=1, progress=False)
     remote = solve_many(task_name, starts, taus, workers=2, backend="ray", progress=False)
     assert sum(r.success for r in local) >= 3
-    _assert_same_results(local, remote)
+    assert_same_results(local, remote)
 
 
 def test_ray_solves_each_start_for_its_robot_like_the_local_backend(local_ray: Any) -> None:
@@ -103,7 +90,7 @@ def test_ray_solves_each_start_for_its_robot_like_the_local_backend(local_ray: A
     options = {"codegen": False, "multi_start": "never"}
     local = solve_many(task, starts, thetas=thetas, workers=1, progress=False, solver_options=options)
     remote = solve_many(task, starts, thetas=thetas, workers=2, backend="ray", progress=False, solver_options=options)
-    _assert_same_results(local, remote)
+    assert_same_results(local, remote)
     for a, b, theta in zip(local, remote, thetas, strict=True):
         np.testing.assert_array_equal(b.theta, theta)
         np.testing.assert_array_equal(a.knot_grad_theta, b.knot_grad_theta)
@@ -152,7 +139,7 @@ def test_an_actor_that_dies_mid_solve_is_restarted_and_its_chunk_rerun(
     starts = _acrobot_starts(8)
     local = _fast(starts, workers=1, backend="local")
     first = _fast(starts, workers)  # the pool has (at least) ``workers`` actors from here on
-    _assert_same_results(local, first)
+    assert_same_results(local, first)
     created, retried, pids = parallel._RAY_POOL.created, parallel._RAY_POOL.retried, _pids()[:workers]
     with pytest.raises(ray.exceptions.RayTaskError, match="k must be >= 1"):
         _arm({0: 0})
@@ -166,11 +153,11 @@ def test_an_actor_that_dies_mid_solve_is_restarted_and_its_chunk_rerun(
     for i, (old, new) in enumerate(zip(pids, after, strict=True)):
         assert (new != old) == (i in faults), f"actor {i}: pid {old} -> {new}"
     _assert_each_start_once(starts, remote)
-    _assert_same_results(local, remote)
+    assert_same_results(local, remote)
     # The restarted actors are unarmed: the next call has nothing to re-run.
     again = _fast(starts, workers)
     assert parallel._RAY_POOL.retried == retried + len(faults) and _pids()[:workers] == after
-    _assert_same_results(local, again)
+    assert_same_results(local, again)
 
 
 def test_without_the_retry_options_the_same_fault_loses_the_chunk(
@@ -278,9 +265,9 @@ def test_later_calls_reuse_the_actor_pool(local_ray: Any) -> None:
     if in_gcs is not None:
         assert _gcs_solver_actors() == in_gcs, "Ray recorded new actors during the third call"
 
-    _assert_same_results(local, first)
-    _assert_same_results(local, second)
-    _assert_same_results(local[::-1], third)
+    assert_same_results(local, first)
+    assert_same_results(local, second)
+    assert_same_results(local[::-1], third)
 
     handles = list(parallel._RAY_POOL.actors)
     parallel.shutdown_ray_pool()
@@ -311,14 +298,14 @@ def test_two_node_cluster_spreads_the_pool_over_both_nodes() -> None:
         remote = solve_many("acrobot", starts, workers=2, backend="ray", progress=False)
         assert parallel._RAY_POOL.created == created + 2  # a fresh pool on the new cluster
         assert not set(_pool_ids()) & set(stale)
-        _assert_same_results(local, remote)
+        assert_same_results(local, remote)
         nodes = set(ray.get([a.node_id.remote() for a in parallel._RAY_POOL.actors]))
         alive_nodes = {n["NodeID"] for n in ray.nodes() if n["Alive"]}
         assert len(alive_nodes) == 2
         assert nodes == alive_nodes, "the two actors did not run on both nodes"
         again = solve_many("acrobot", starts, workers=2, backend="ray", progress=False)
         assert parallel._RAY_POOL.created == created + 2
-        _assert_same_results(local, again)
+        assert_same_results(local, again)
     finally:
         parallel.shutdown_ray_pool()
         ray.shutdown()

@@ -23,6 +23,7 @@ from typing import Any
 import casadi as ca
 import numpy as np
 import pytest
+from result_checks import assert_same_results
 
 from seagul_control import transcription as tr_mod
 from seagul_control.transcription import Transcription, TranscriptionOptions, compile_nlp_library
@@ -52,19 +53,6 @@ def starts() -> np.ndarray:
     """Three starts in X0, near the goal (quick solves)."""
     task = make_task("acrobot")
     return task.goal + 0.5 * (task.sample_x0(np.random.default_rng(3), 3) - task.goal)
-
-
-def _same_results(a: list[SolveResult], b: list[SolveResult]) -> None:
-    assert len(a) == len(b)
-    for i, (ra, rb) in enumerate(zip(a, b, strict=True)):
-        for f in dataclasses.fields(SolveResult):
-            if f.name == "solve_time":
-                continue
-            va, vb = getattr(ra, f.name), getattr(rb, f.name)
-            if isinstance(va, np.ndarray | float):
-                np.testing.assert_array_equal(va, vb, err_msg=f"result {i}: {f.name}")
-            else:
-                assert va == vb, f"result {i}: {f.name}"
 
 
 # ------------------------------------------------------------------------------------------------- (a) fingerprints
@@ -124,7 +112,7 @@ def test_a_variant_is_solved_as_given_by_two_workers(
     expected = [TrajectoryOptimizer(variant, **FAST).solve(x, TAU) for x in starts]
     remote = solve_many(variant, starts, _taus(starts), workers=2, progress=False, solver_options=FAST)
     assert all(r.success for r in expected)
-    _same_results(expected, remote)
+    assert_same_results(expected, remote)
     # Not the built-in acrobot's values (what a name looked up in the workers would have solved).
     assert all(r.success for r in default_results)
     for mine, builtin in zip(remote, default_results, strict=True):
@@ -139,7 +127,7 @@ def test_trajopt_batch_solver_takes_the_task_object(
     by_name = trajopt_batch_solver("acrobot", solver_options=FAST)
     assert by_name.task is make_task("acrobot")  # a name is resolved once, in the caller
     direct = solve_many(variant, starts[:1], _taus(starts[:1]), progress=False, solver_options=FAST)
-    _same_results(direct, solver(starts[:1], _taus(starts[:1])))
+    assert_same_results(direct, solver(starts[:1], _taus(starts[:1])))
     # In this process, too, optimizers are kept per task fingerprint and options, not per name.
     keys = {fp for fp, frozen in parallel._OPTIMIZERS if frozen == parallel._freeze(FAST)}
     assert {variant.fingerprint(), make_task("acrobot").fingerprint()} <= keys
@@ -308,7 +296,7 @@ def test_an_unregistered_task_goes_through_two_local_workers() -> None:
     expected = [TrajectoryOptimizer(task, codegen=False).solve(x) for x in starts]
     remote = solve_many(task, starts, workers=2, progress=False, solver_options={"codegen": False})
     assert all(r.success for r in expected)
-    _same_results(expected, remote)
+    assert_same_results(expected, remote)
     heavy = solve_many(make_point_mass(2.0), starts, workers=2, progress=False, solver_options={"codegen": False})
     assert all(h.value != r.value for h, r in zip(heavy, remote, strict=True))
 
@@ -363,4 +351,4 @@ def test_a_variant_on_ray_actors(private_ray: Any, variant: Task, starts: np.nda
     remote = solve_many(
         variant, starts[:2], _taus(starts[:2]), workers=2, backend="ray", progress=False, solver_options=FAST
     )
-    _same_results(local, remote)
+    assert_same_results(local, remote)
