@@ -51,6 +51,7 @@ they are complete, and the shipped controller's evaluation is read back from ``s
 
 The package: :mod:`~seagul_learn.experiment.config` (:class:`ExperimentConfig`, :class:`Preset`),
 :mod:`~seagul_learn.experiment.methods` (the named methods), :mod:`~seagul_learn.experiment.pipeline` (the stages),
+:mod:`~seagul_learn.experiment.closed_loop_stage` (the closed-loop evaluation of every network and baseline),
 :mod:`~seagul_learn.experiment.runs` (training runs of methods x seeds and the closed-loop evaluation of their
 snapshots on grid and held-out starts),
 :mod:`~seagul_learn.experiment.shipped_stage` (the shipped controller's stage),
@@ -77,6 +78,7 @@ from typing import Any
 from seagul_envs import Task, available_tasks, make_task, resolve_task
 from seagul_learn.comparison import METRICS, PairedComparison, final_metric, paired_comparison, plot_curves_with_band
 from seagul_learn.dataset import atomic_write_text
+from seagul_learn.experiment.closed_loop_stage import _tail_multiple
 from seagul_learn.experiment.config import (
     BASELINE_METHOD,
     METHOD_LABELS,
@@ -105,7 +107,7 @@ from seagul_learn.experiment.methods import (
     method_overrides,
     recipe_fields,
 )
-from seagul_learn.experiment.pipeline import Experiment, LearnedPolicy, _tail_multiple
+from seagul_learn.experiment.pipeline import Experiment, LearnedPolicy
 from seagul_learn.experiment.runs import (
     deployment_options,
     evaluate_snapshot,

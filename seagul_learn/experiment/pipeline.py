@@ -10,11 +10,10 @@ See :mod:`seagul_learn.experiment` for the stages, their files and how a run res
 from __future__ import annotations
 
 import json
-import math
 import shutil
 import time
-from collections.abc import Callable, Mapping, Sequence
-from dataclasses import asdict, dataclass, field, replace
+from collections.abc import Callable, Mapping
+from dataclasses import asdict, dataclass, field
 from datetime import datetime
 from pathlib import Path
 from typing import Any
@@ -25,25 +24,11 @@ from seagul_envs import Task, available_tasks
 from seagul_envs.tasks import task_label
 from seagul_learn.comparison import METRICS, final_metric, paired_comparison, plot_curves_with_band
 from seagul_learn.dataset import atomic_write_text
-from seagul_learn.experiment.config import (
-    BASELINE_METHOD,
-    ExperimentConfig,
-    _slug,
-    method_label,
-    policy_label,
-    reference_method,
-    versus_key,
-)
-from seagul_learn.experiment.figures import plot_success_vs_solves
+from seagul_learn.experiment import closed_loop_stage
+from seagul_learn.experiment.config import BASELINE_METHOD, ExperimentConfig, method_label, policy_label
 from seagul_learn.experiment.methods import SHIPPED_METHOD, shipped_recipe, train_config, train_field_names
-from seagul_learn.experiment.runs import deployment_options, evaluate_snapshot, network_spec, train_runs
+from seagul_learn.experiment.runs import deployment_options, network_spec, train_runs
 from seagul_learn.experiment.sections import experiment_sections
-from seagul_learn.experiment.statistics import (
-    method_statistics,
-    nanmedian,
-    paired_success_comparison,
-    success_rate,
-)
 from seagul_learn.shipped import shipped_network
 
 
@@ -386,244 +371,21 @@ class Experiment:
             main.append(PolicySpec("sb3", label, path, (("algo", algo),)))
         return main, [PolicySpec("full", "full-horizon MPC")]
 
-    def _episodes(
-        self,
-        spec: Any,
-        starts: np.ndarray,
-        record: bool,
-        record_queries: bool = False,
-        env_id: str | None = None,
-        folder: Path | None = None,
-    ) -> list[Any]:
-        """One policy's episodes (in ``env_id``, else the task's env), from its stored table if an interrupted run
-        finished it. Stored in ``folder`` (default ``closed_loop/episodes`` or ``closed_loop/episodes_<env>``) as
-        ``<slug of the label>.json``."""
-        from seagul_control.evaluation import EpisodeResult, evaluate
-
-        if folder is None:
-            folder = self.out / "closed_loop" / ("episodes" if env_id is None else f"episodes_{_slug(env_id)}")
-        path = folder / f"{_slug(spec.name)}.json"
-        if path.is_file():
-            return [EpisodeResult(**row) for row in json.loads(path.read_text())]
-        results = evaluate(
-            self.task,
-            [spec],
-            starts,
-            self.config.workers,
-            self.config.progress,
-            record,
-            record_queries=record_queries,
-            env_id=env_id,
-        )
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(path, json.dumps([asdict(r) for r in results], allow_nan=True))
-        return results
-
-    def _snapshot_episodes(
-        self, policy: LearnedPolicy, starts: np.ndarray, record: bool
-    ) -> tuple[list[Any], list[Any]]:
-        """``(grid episodes, held-out episodes)`` of one snapshot network: the grid ``starts`` and, for a final
-        network, the preset's ``heldout_starts`` held-out starts, through
-        :func:`~seagul_learn.experiment.runs.evaluate_snapshot` (the closed-loop benchmark's evaluation). Each set is
-        stored as its own table (``closed_loop/episodes/<slug>.json``, ``closed_loop/episodes_heldout/<slug>.json``)
-        and read back by a resumed run, which evaluates only what is missing (e.g. the held-out starts of a run
-        stored before they existed). A final network records its planner queries (:meth:`_query_error`)."""
-        from seagul_control.evaluation import EpisodeResult
-
-        n_held = self.preset.heldout_starts if policy.final else 0
-        name = f"{_slug(policy.spec.name)}.json"
-        paths = (self.out / "closed_loop" / "episodes" / name, self.out / "closed_loop" / "episodes_heldout" / name)
-        stored = [[EpisodeResult(**row) for row in json.loads(p.read_text())] if p.is_file() else None for p in paths]
-        if n_held == 0:
-            stored[1] = []
-        if stored[0] is not None and stored[1] is not None:
-            return stored[0], stored[1]
-        grid, held = evaluate_snapshot(
-            self.task,
-            policy.spec,
-            starts if stored[0] is None else starts[:0],
-            n_held if stored[1] is None else np.empty((0, self.task.nx)),
-            self.config.workers,
-            self.config.progress,
-            record,
-            record_queries=policy.final,
-        )
-        for k, new in enumerate((grid, held)):
-            if stored[k] is None:
-                paths[k].parent.mkdir(parents=True, exist_ok=True)
-                atomic_write_text(paths[k], json.dumps([asdict(r) for r in new], allow_nan=True))
-                stored[k] = new
-        return stored[0] or [], stored[1] or []
-
-    def _query_error(self, policy: LearnedPolicy, episodes: Sequence[Any]) -> dict[str, Any]:
-        """The planner-query error of a final network over its grid episodes' queries (stored when computed)."""
-        path = self.out / "closed_loop" / "query_errors" / f"{policy.method}-seed{policy.seed}.json"
-        if path.is_file():
-            return json.loads(path.read_text())
-        from seagul_learn.closed_loop import query_errors
-        from seagul_learn.solving import CachedBatchSolver, solver_key, trajopt_batch_solver
-        from seagul_learn.value_network import ValueNetwork
-
-        queries = np.array([q for e in episodes for q in e.queries], dtype=np.float64).reshape(-1, self.task.nx + 1)
-        stride = self.preset.query_tail_stride
-        if stride > 1:
-            queries = queries[[_tail_multiple(self.task, float(t), stride) for t in queries[:, -1]]]
-        solver = CachedBatchSolver(
-            trajopt_batch_solver(self.task, workers=self.config.workers, backend=self.config.backend),
-            self._solver_cache(),
-            solver_key(None, self.task),
-        )
-        network = ValueNetwork.load(policy.spec.path)
-        # One sampling seed for every network: the sample is a function of the queries only.
-        error = query_errors(self.task, network, queries, solver, num=self.preset.query_samples, seed=0).as_dict()
-        path.parent.mkdir(parents=True, exist_ok=True)
-        atomic_write_text(path, json.dumps(error, indent=2, allow_nan=True))
-        return error
-
     def evaluate_closed_loop(self) -> dict[str, Any]:
-        """Closed-loop runs of every network and baseline over the start grids, the per-method statistics, figures.
+        """Closed-loop runs of every network and baseline over the start grids, the per-method statistics, figures
+        (:func:`~seagul_learn.experiment.closed_loop_stage.evaluate_closed_loop`).
 
         Writes ``closed_loop/summary.json`` (``policies``: one row per policy and grid; ``methods``: see
-        :func:`method_statistics`, with each final network's held-out success; the grids, budgets and the number of
-        held-out starts) and ``success_vs_solves.png``.
+        :func:`~seagul_learn.experiment.statistics.method_statistics`, with each final network's held-out success;
+        the grids, budgets and the number of held-out starts) and ``success_vs_solves.png``.
         """
-        from seagul_control.evaluation import start_grid
-        from seagul_learn.report import summarize
-
-        p = self.preset
-        # Tasks with a trajectory figure (the glider, paper Fig. 3 centre) record the seed-0 paths.
-        paths_shown = self.task.profile.trajectory_plot is not None
-        starts, grid = start_grid(self.task, p.grid_points)
-        ref_starts, ref_grid = start_grid(self.task, p.reference_grid_points)
-        learned = self.learned_policies()
-        finals = [lp for lp in learned if lp.final]
-        episodes: dict[str, list[Any]] = {}
-        heldout: dict[tuple[str, int], list[Any]] = {}
-        for lp in learned:
-            record = paths_shown and lp.final and lp.seed == 0
-            episodes[lp.spec.name], held = self._snapshot_episodes(lp, starts, record)
-            if lp.final:
-                heldout[(lp.method, lp.seed)] = held
-        errors = {(lp.method, lp.seed): self._query_error(lp, episodes[lp.spec.name]) for lp in finals}
-        main_specs, reference_specs = self.baseline_specs()
-        base_results = [r for spec in main_specs for r in self._episodes(spec, starts, paths_shown)]
-        ref_results = [r for spec in reference_specs for r in self._episodes(spec, ref_starts, paths_shown)]
-        # Every final network on the reference grid too, so its success compares with the full-horizon MPC's.
-        ref_learned: dict[tuple[str, int], list[Any]] = {}
-        for lp in finals:
-            spec = replace(lp.spec, label=policy_label(lp.method, lp.seed, reference=True))
-            ref_learned[(lp.method, lp.seed)] = self._episodes(spec, ref_starts, False)
-
-        main_results = [r for lp in learned for r in episodes[lp.spec.name]] + base_results
-        reference_results = ref_results + [r for lp in finals for r in ref_learned[(lp.method, lp.seed)]]
-        shown = [r for lp in finals if lp.seed == 0 for r in episodes[lp.spec.name]] + base_results
-        shown_ref = ref_results + [r for lp in finals if lp.seed == 0 for r in ref_learned[(lp.method, lp.seed)]]
-        main_paths = self._grid_outputs("main", main_results, shown, grid)
-        ref_paths = self._grid_outputs("reference", reference_results, shown_ref, ref_grid)
-        rows = summarize(self.task, main_results) + summarize(self.task, reference_results)
-
-        success = {lp: success_rate(episodes[lp.spec.name]) for lp in learned}
-        methods = {
-            m: method_statistics(
-                m,
-                {(lp.seed, lp.budget): s for lp, s in success.items() if lp.method == m},
-                {s: success_rate(ref_learned[(m, s)]) for s in range(p.seeds)},
-                [errors[(m, s)] for s in range(p.seeds)],
-                p.seeds,
-                p.budgets,
-                {s: success_rate(heldout[(m, s)]) for s in range(p.seeds)} if p.heldout_starts else None,
-            )
-            for m in p.methods
-        }
-        reference = reference_method(p.methods)
-        if reference is not None:
-            for m in p.methods:
-                if m != reference:
-                    methods[m][versus_key(reference)] = paired_success_comparison(
-                        methods[m]["success"], methods[reference]["success"]
-                    )
-        baselines = {
-            name: success_rate([r for r in base_results + ref_results if r.policy == name])
-            for name in dict.fromkeys(r.policy for r in base_results + ref_results)
-        }
-        summary = {
-            "methods": methods,
-            "baselines": baselines,
-            "reference_method": reference,
-            "budgets": list(p.budgets),
-            "seeds": p.seeds,
-            "grid": grid,
-            "reference_grid": ref_grid,
-            "heldout_starts": p.heldout_starts,
-            "policies": rows,
-        }
-        atomic_write_text(self.out / "closed_loop" / "summary.json", json.dumps(summary, indent=2, allow_nan=True))
-        n, m = grid["shape"]
-        plot_success_vs_solves(
-            methods,
-            self.out / "success_vs_solves.png",
-            references={
-                f"full-horizon MPC ({ref_grid['shape'][0]} x {ref_grid['shape'][1]} reference grid)": baselines.get(
-                    "full-horizon MPC", math.nan
-                ),
-                "LQR": baselines.get("LQR", math.nan),
-            },
-            title=f"{self.task.name}: closed-loop success on the {n} x {m} grid vs solves per network "
-            f"(median, 25-75 % band over {p.seeds} seeds)",
-        )
-        figures = [
-            ("success_vs_solves.png", "Grid success vs solves per network: median and 25-75 % band over seeds"),
-            (str(main_paths["heatmap"].relative_to(self.out)), self.task.profile.heatmap_text(self.task, grid)),
-            (str(ref_paths["heatmap"].relative_to(self.out)), "The same on the coarser reference grid (seed 0)"),
-        ]
-        figure = self.task.profile.trajectory_plot
-        if "trajectories" in main_paths and figure is not None:
-            figures.append((str(main_paths["trajectories"].relative_to(self.out)), figure.caption))
-        report_policies = [lp.spec.name for lp in finals] + [r.policy for r in reference_results + base_results]
-        return {
-            "rows": rows,
-            "report_policies": list(dict.fromkeys(report_policies)),
-            "methods": methods,
-            "baselines": baselines,
-            "figures": figures,
-        }
+        return closed_loop_stage.evaluate_closed_loop(self)
 
     def evaluate_other_envs(self) -> dict[str, Any]:
         """Every final network of every seed, LQR and the SB3 models on the main grid in each of ``config.envs``
-        (the same starts as in the task's env). Writes ``closed_loop/other_envs.json``: per controller (a method's
-        seeds pooled into their median), its success in the task's env and in each other env."""
-        from seagul_control.evaluation import start_grid
-
-        starts, _ = start_grid(self.task, self.preset.grid_points)
-        own = self.task.profile.env_id or self.task.name
-        finals = [lp for lp in self.learned_policies() if lp.final]
-        main_specs, _ = self.baseline_specs()
-        rows: dict[str, dict[str, Any]] = {}
-        for env_id in (None, *self.config.envs):
-            column = own if env_id is None else env_id
-            per_method: dict[str, list[float]] = {}
-            for lp in finals:
-                rate = success_rate(self._episodes(lp.spec, starts, False, record_queries=False, env_id=env_id))
-                per_method.setdefault(lp.method, []).append(rate)
-            for method, rates in per_method.items():
-                row = rows.setdefault(f"{method_label(method)} MPC", {"seeds": len(rates)})
-                row[column] = nanmedian(rates)
-            for spec in main_specs:
-                rows.setdefault(spec.name, {"seeds": 1})[column] = success_rate(
-                    self._episodes(spec, starts, False, env_id=env_id)
-                )
-        result = {"envs": [own, *self.config.envs], "grid_points": self.preset.grid_points, "rows": rows}
-        atomic_write_text(self.out / "closed_loop" / "other_envs.json", json.dumps(result, indent=2, allow_nan=True))
-        return result
-
-    def _grid_outputs(self, name: str, results: list[Any], shown: list[Any], grid: dict[str, Any]) -> dict[str, Path]:
-        """Tables of every episode on one grid (queries left out) and the heatmap of the ``shown`` policies."""
-        from seagul_learn.report import plot_heatmaps, write_outputs
-
-        out = self.out / "closed_loop" / name
-        paths = write_outputs(out, self.task, [replace(r, queries=[]) for r in results], None, {"grid": grid})
-        paths["heatmap"] = plot_heatmaps(self.task, shown, grid, out / "heatmap.png")
-        return paths
+        (:func:`~seagul_learn.experiment.closed_loop_stage.evaluate_other_envs`); writes
+        ``closed_loop/other_envs.json``."""
+        return closed_loop_stage.evaluate_other_envs(self)
 
     # -------------------------------------------------------------------------------------------------- report
     def write_report(
@@ -641,15 +403,3 @@ class Experiment:
         sections = experiment_sections(self, learning, closed_loop, shipped)
         title = f"Learned value functions as MPC terminal costs: {self.task.name}"
         return write_report(self.out, title, sections)
-
-
-def _tail_multiple(task: Any, tau: float, stride: int) -> bool:
-    """Whether the tail problem from time to go ``tau`` has a multiple of ``stride`` intervals."""
-    from seagul_learn.closed_loop import snap_tau
-    from seagul_learn.solving import tail_horizon
-
-    try:
-        k = tail_horizon(task, snap_tau(task, tau))
-    except ValueError:
-        return False
-    return k is None or k % stride == 0

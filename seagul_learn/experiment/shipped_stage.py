@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from typing import Any
 
+from seagul_learn.experiment.closed_loop_stage import stored_episodes
 from seagul_learn.experiment.config import SHIPPED_LABEL
 from seagul_learn.shipped import shipped_network
 
@@ -31,10 +32,10 @@ def measure_shipped(experiment: Any) -> dict[str, Any]:
     folder = experiment.out / "shipped" / "episodes"
     spec = controller.spec(SHIPPED_LABEL, jit=experiment.config.shipped_jit)
     lqr = PolicySpec("lqr", "LQR")
-    episodes = [r for policy in (spec, lqr) for r in experiment._episodes(policy, starts, False, folder=folder)]
+    episodes = [r for policy in (spec, lqr) for r in stored_episodes(experiment, policy, starts, False, folder=folder)]
     paths_shown = experiment.task.profile.trajectory_plot is not None  # as the closed-loop evaluation stores them
     _, reference_specs = experiment.baseline_specs()
-    full = [r for s in reference_specs for r in experiment._episodes(s, starts, paths_shown)]
+    full = [r for s in reference_specs for r in stored_episodes(experiment, s, starts, paths_shown)]
     rows = summarize(experiment.task, episodes + full)
     by = {row["policy"]: row for row in rows}
     ours, full_row = by[SHIPPED_LABEL], by[reference_specs[0].name]
