@@ -209,7 +209,7 @@ def as_controller(controller: Any, *, episode_time: float | None = None) -> Call
     if callable(getattr(controller, "predict", None)):
         return PredictController(controller, episode_time=episode_time)
     if callable(controller):
-        return controller  # type: ignore[no-any-return]
+        return controller
     raise TypeError(
         f"controller must be a callable (x, t) -> action or have SB3's predict method, got {type(controller).__name__}"
     )
@@ -285,9 +285,9 @@ def _check_action(action: Any, low: np.ndarray, high: np.ndarray, step: int, t: 
         i = int(np.flatnonzero(below | above)[0])
         bound, which = (low[i], "lower") if below[i] else (high[i], "upper")
         raise ValueError(
-            f"controller returned action[{i}] = {arr[i]!r} at step {step} (t = {t:.3f} s), beyond the {which} bound "
-            f"{bound!r} of the action space [{low.tolist()}, {high.tolist()}] (dm_control clips nothing; clip in "
-            "the controller if saturation is meant)"
+            f"controller returned action[{i}] = {float(arr[i])!r} at step {step} (t = {t:.3f} s), beyond the {which} "
+            f"bound {float(bound)!r} of the action space (low {low.tolist()}, high {high.tolist()}; dm_control "
+            "clips nothing: clip in the controller if saturation is meant)"
         )
     return np.clip(arr, low, high)
 
