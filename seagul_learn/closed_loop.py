@@ -52,7 +52,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import asdict, dataclass
-from typing import Any, ClassVar, Literal
+from typing import Any
 
 import numpy as np
 from scipy.spatial import cKDTree
@@ -62,105 +62,21 @@ from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
 from seagul_envs import Task
 from seagul_learn import member_selection
 from seagul_learn.dataset import SolveRecord, TrainingArrays
-from seagul_learn.samplers import SamplerOptions, StartPool
+
+# The options live in the torch-free seagul_learn.sampler_options (a configuration is parsed without torch); they
+# are served here under the names they always had.
+from seagul_learn.sampler_options import SELECTIONS as SELECTIONS
+from seagul_learn.sampler_options import ClosedLoopOptions as ClosedLoopOptions
+from seagul_learn.sampler_options import Selection as Selection
+from seagul_learn.samplers import StartPool
 from seagul_learn.solving import SolveRunner, tail_horizon
 from seagul_learn.value_network import ValueEnsemble, ValueModel
 
-Selection = Literal["farthest", "spread", "lowest", "random"]
-SELECTIONS = ("farthest", "spread", "lowest", "random")
 _STREAM_EPISODE_STARTS = 11
 _STREAM_SELECTION = 12
 _STREAM_EPISODE_ROBOTS = 14
 _STREAM_VISITED = 15
 _STREAM_EPISODE_SLICE = 20
-
-
-@dataclass(frozen=True, eq=False)
-class ClosedLoopOptions(SamplerOptions):
-    """Settings of :class:`ClosedLoopSampler` (module docstring), and of what the training loop does around it
-    (``collect_refit``, ``keep_best``): ``TrainConfig(sampler=ClosedLoopOptions(...))`` chooses the sampler."""
-
-    name: ClassVar[str] = "closed-loop"
-
-    episodes: int = 20
-    """Closed-loop episodes per round (training starts from X0 at the nominal time to go, never the evaluation
-    grid)."""
-    horizon: int | None = None
-    """Lookahead steps of the collecting MPC (None: the task's default, as deployed)."""
-    trust_region: Literal["lqr", "box", "none"] | None = None
-    """Guard of the collecting (= deployed) MPC after the warm-up rounds; None = the task's deployed default
-    (``profile.mpc_trust_region``, as ``LimitedLookaheadMPC`` resolves it)."""
-    warmup_rounds: int = 1
-    """Rounds at the start that collect with the ``"lqr"``-guarded MPC instead."""
-    selection: Selection = "farthest"
-    """How the round's queries are chosen among the collected ones."""
-    tail_stride: int = 5
-    """Only queries whose tail has a multiple of this many intervals (fixed-step tasks; acrobot: 5 = every 0.5 s,
-    so 9 tail solvers are built, ~12 s of compilation each on first use, instead of 45 with 1)."""
-    uniform_fraction: float = 0.0
-    """Share of each round's solves spent on uniform draws from X0 (the baseline's starts)."""
-    uniform_solves: int = 0
-    """Budget solves spent on uniform draws before the first closed-loop round (a network that has seen only the
-    pretraining solves plans into states with values of 1e4 and more, which teach nothing)."""
-    jit: bool = True
-    """Compile the collecting MPC (as deployed); False solves it interpreted (tests)."""
-    solver: str = "ipopt"
-    """Solver of the collecting MPC: the same NLP as deployed, solved by IPOPT with a wall-time limit per step
-    (``max_step_time``). The deployed default, fatrop, looped without end inside single solves from shifted warm
-    starts at the extreme states closed-loop training visits (docs/experiments/closed-loop.md); ``"fatrop"`` collects
-    with it anyway."""
-    max_step_time: float = 5.0
-    """IPOPT wall-time limit per collecting MPC step (s); a step that hits it falls back like any failed solve."""
-    visited_fraction: float = 0.0
-    """Share of each round's tail solves started from the states the collecting episodes *visited* ``(x_t, tau_t)``
-    instead of the planned terminal states (DAgger's labels: the optimal continuation from where the learned
-    controller actually went, whose first knots are the terminal states the planner should have chosen). States of
-    episodes that failed come first; fixed-step tasks only."""
-    slice_fraction: float = 0.0
-    """Share of each round's episode starts drawn on the evaluation grid's slice of X0
-    (:func:`seagul_control.evaluation.sample_grid_slice`: the acrobot at rest), random draws, never the grid's points.
-    Uniform draws over the 4-D X0 almost never start at rest, where the grid's starts are. 0: every start uniform
-    over X0 (exactly the uniform stream's draws)."""
-
-    collect_refit: bool = False
-    """Training loop: each round after the ``"lqr"`` warm-up rounds collects with a refit of the buffer so far
-    (``TrainConfig.refit.steps`` Adam steps, as the final refit: the network that would be deployed if training
-    stopped there) instead of the loop's network, so the queries are the deployed controller's (DAgger). Costs one
-    refit per such round; the loop's own training is unchanged. Needs ``refit.steps > 0``."""
-    keep_best: bool = False
-    """Training loop: deploy the collector that flew best. Each round's collecting MPC runs ``episodes`` episodes
-    from new X0 starts (never the evaluation's) with the network of the round before; the network of the round whose
-    deployed collector (guard ``trust_region``) succeeded most often (ties: the later, trained on more data) is kept
-    as ``network_best.pt`` (with ``network_best.json``: its round, successes, solves) and becomes ``network.pt``, the
-    loop's last network ``network_last.pt``; snapshots are the best so far. Model selection on training episodes:
-    round-to-round closed-loop success swings widely (glider: 4 to 19 of 20 over 60 rounds of one seed,
-    docs/experiments/closed-loop.md). Needs ``refit.steps = 0``."""
-
-    def __post_init__(self) -> None:
-        if self.episodes < 1:
-            raise ValueError(f"closed-loop episodes must be >= 1, got {self.episodes}")
-        if self.horizon is not None and self.horizon < 1:
-            raise ValueError(f"closed-loop horizon must be >= 1 step, got {self.horizon}")
-        if self.trust_region not in ("lqr", "box", "none", None):
-            raise ValueError(f"closed-loop trust_region must be 'lqr', 'box' or 'none', got {self.trust_region!r}")
-        if self.warmup_rounds < 0:
-            raise ValueError(f"closed-loop warmup_rounds must be >= 0, got {self.warmup_rounds}")
-        if self.selection not in SELECTIONS:
-            raise ValueError(f"closed-loop selection must be one of {list(SELECTIONS)}, got {self.selection!r}")
-        if self.tail_stride < 1:
-            raise ValueError(f"closed-loop tail_stride must be >= 1, got {self.tail_stride}")
-        if not 0.0 <= self.uniform_fraction <= 1.0:
-            raise ValueError(f"closed-loop uniform_fraction must be in [0, 1], got {self.uniform_fraction}")
-        if self.solver not in ("ipopt", "fatrop"):
-            raise ValueError(f"closed-loop solver must be 'ipopt' or 'fatrop', got {self.solver!r}")
-        if not self.max_step_time > 0:
-            raise ValueError(f"closed-loop max_step_time must be > 0 s, got {self.max_step_time}")
-        if self.uniform_solves < 0:
-            raise ValueError(f"closed-loop uniform_solves must be >= 0, got {self.uniform_solves}")
-        if not 0.0 <= self.visited_fraction <= 1.0:
-            raise ValueError(f"closed-loop visited_fraction must be in [0, 1], got {self.visited_fraction}")
-        if not 0.0 <= self.slice_fraction <= 1.0:
-            raise ValueError(f"closed-loop slice_fraction must be in [0, 1], got {self.slice_fraction}")
 
 
 @dataclass

@@ -44,7 +44,6 @@ from typing import Annotated, Any, ClassVar, Union
 import tyro
 
 from seagul_envs import Task, available_tasks, resolve_task, validate_task
-from seagul_learn.closed_loop import ClosedLoopOptions
 from seagul_learn.config_legacy import LEGACY_NAMES, _legacy_value, flat_fields, flat_name, new_name
 from seagul_learn.config_parts import (
     SECTIONS,
@@ -56,7 +55,7 @@ from seagul_learn.config_parts import (
     SelectionConfig,
     _check,
 )
-from seagul_learn.samplers import AdversarialOptions, SamplerOptions, UniformOptions
+from seagul_learn.sampler_options import AdversarialOptions, ClosedLoopOptions, SamplerOptions, UniformOptions
 
 __all__ = [
     "LEGACY_NAMES",
@@ -207,9 +206,8 @@ class TrainConfig:
     budget: int = 100
     """Solves spent by the sampler (pretraining solves not included)."""
     sampler: SamplerChoice = field(default_factory=AdversarialOptions)
-    """The sampler and its options: :class:`~seagul_learn.samplers.UniformOptions` (the baseline),
-    :class:`~seagul_learn.samplers.AdversarialOptions` (paper Alg. 1) or
-    :class:`~seagul_learn.closed_loop.ClosedLoopOptions` (the deployed MPC's queries)."""
+    """The sampler and its options (:mod:`seagul_learn.sampler_options`): :class:`UniformOptions` (the baseline),
+    :class:`AdversarialOptions` (paper Alg. 1) or :class:`ClosedLoopOptions` (the deployed MPC's queries)."""
     network: NetworkConfig = field(default_factory=NetworkConfig)
     """The value function's architecture."""
     schedule: ScheduleConfig = field(default_factory=ScheduleConfig)

@@ -36,15 +36,20 @@ iterations often appear to suffice", paper §5); ``stop_on_decrease``; ``optimiz
 
 from __future__ import annotations
 
-import dataclasses
 import math
-from dataclasses import dataclass, field
-from typing import Any, ClassVar, Literal, Protocol
+from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
 from seagul_envs import Task
 from seagul_learn.dataset import SolveRecord
+
+# The option classes live in the torch-free seagul_learn.sampler_options (a configuration is parsed without torch);
+# they are served here under the names they always had.
+from seagul_learn.sampler_options import AdversarialOptions as AdversarialOptions
+from seagul_learn.sampler_options import SamplerOptions as SamplerOptions
+from seagul_learn.sampler_options import UniformOptions as UniformOptions
 from seagul_learn.solving import SolveRunner
 from seagul_learn.value_network import ValueModel
 
@@ -110,41 +115,6 @@ class Sampler(Protocol):
     def sample(self, num_solves: int, network: ValueModel, runner: SolveRunner) -> list[SolveRecord]: ...
 
 
-class SamplerOptions:
-    """Base of the samplers' option classes (:class:`UniformOptions`, :class:`AdversarialOptions`,
-    :class:`~seagul_learn.closed_loop.ClosedLoopOptions`): ``TrainConfig.sampler`` holds one of them, and the class
-    chosen is the sampler. ``name`` is the sampler's name (``"uniform"``, ``"adversarial"``, ``"closed-loop"``),
-    which an instance also compares equal to, so ``config.sampler == "closed-loop"`` reads as it did when the field
-    was that string."""
-
-    name: ClassVar[str] = ""
-
-    def __eq__(self, other: object) -> bool:
-        if isinstance(other, str):
-            return self.name == other
-        if type(other) is not type(self):
-            return NotImplemented
-        return dataclasses.astuple(self) == dataclasses.astuple(other)  # type: ignore[call-overload]
-
-    def __hash__(self) -> int:
-        return hash((self.name, dataclasses.astuple(self)))  # type: ignore[call-overload]
-
-    def to_dict(self) -> dict[str, Any]:
-        """The options as JSON-ready data with the sampler's name under ``"name"`` (``TrainConfig.to_dict``)."""
-        out: dict[str, Any] = {"name": self.name}
-        for f in dataclasses.fields(self):  # type: ignore[arg-type]
-            value = getattr(self, f.name)
-            out[f.name] = list(value) if isinstance(value, tuple) else value
-        return out
-
-
-@dataclass(frozen=True, eq=False)
-class UniformOptions(SamplerOptions):
-    """The uniform baseline (:class:`UniformSampler`): the seed's uniform starts in order; nothing to set."""
-
-    name: ClassVar[str] = "uniform"
-
-
 class UniformSampler:
     """The baseline: solve the pool's starts in order (uniform over X0, nominal ``tau``)."""
 
@@ -158,50 +128,6 @@ class UniformSampler:
         """Exactly ``num_solves`` solves (failures included), each for its start's robot in a pool over robots."""
         starts, taus, ids = self.pool.take(num_solves)
         return runner.solve(starts, taus, self.name, thetas=self.pool.thetas_of(ids))
-
-
-@dataclass(frozen=True, eq=False)
-class AdversarialOptions(SamplerOptions):
-    """Settings of the adversarial sampler, paper Alg. 1 (see the module docstring for the exact rules)."""
-
-    name: ClassVar[str] = "adversarial"
-
-    max_steps: int = 5
-    """Solves per chain at most (the start counts as one)."""
-    step_fraction: float = 0.1
-    """Largest move per ascent step, as a fraction of the X0 (T0) box width (Adam: its learning rate)."""
-    eps: float = 1e-3
-    """Stop a chain when the projected step is below this (max-norm, in box widths)."""
-    optimizer: Literal["pga", "adam"] = "pga"
-    """Normalised projected gradient ascent (paper) or Adam on the box-normalised start."""
-    projection: Literal["clip", "reflect"] = "clip"
-    """How an iterate leaving X0 is brought back."""
-    uniform_fraction: float = 0.0
-    """Share of each round's solves spent on plain uniform draws (0 = pure Alg. 1)."""
-    ascend_tau: bool = True
-    """Also ascend in ``tau`` when T0 is an interval."""
-    ascend_theta: bool = True
-    """In a pool over robots, also ascend in the robot's parameters inside Theta (False: each chain keeps its
-    start's robot)."""
-    adam_betas: tuple[float, float] = field(default=(0.9, 0.999))
-    """Adam's moment decay rates (``optimizer="adam"``)."""
-    stop_on_decrease: bool = False
-    """End a chain when its new iterate's loss is below the previous one's (the ascent overshot)."""
-
-    def __post_init__(self) -> None:
-        object.__setattr__(self, "adam_betas", tuple(float(b) for b in self.adam_betas))
-        if self.max_steps < 1:
-            raise ValueError(f"max_steps must be >= 1, got {self.max_steps}")
-        if not self.step_fraction > 0:
-            raise ValueError(f"step_fraction must be > 0, got {self.step_fraction}")
-        if self.eps < 0:
-            raise ValueError(f"eps must be >= 0, got {self.eps}")
-        if self.optimizer not in ("pga", "adam"):
-            raise ValueError(f"optimizer must be 'pga' or 'adam', got {self.optimizer!r}")
-        if self.projection not in ("clip", "reflect"):
-            raise ValueError(f"projection must be 'clip' or 'reflect', got {self.projection!r}")
-        if not 0.0 <= self.uniform_fraction <= 1.0:
-            raise ValueError(f"uniform_fraction must be in [0, 1], got {self.uniform_fraction}")
 
 
 @dataclass

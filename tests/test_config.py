@@ -226,6 +226,35 @@ def test_recipes_overrides_and_other_samplers():
     assert TrainConfig.recipe(task).task is task
 
 
+def test_the_samplers_options_keep_their_old_modules_names_and_old_pickles_load():
+    """The option classes live in the torch-free ``seagul_learn.sampler_options``; ``seagul_learn.samplers``,
+    ``seagul_learn.closed_loop`` and ``seagul_learn.training`` serve the same class objects under the old names,
+    silently, so a config pickled when ``ClosedLoopOptions`` was defined in ``closed_loop`` loads as today's."""
+    import pickle
+
+    from seagul_learn import closed_loop, sampler_options, samplers
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        assert samplers.UniformOptions is sampler_options.UniformOptions is UniformOptions
+        assert samplers.AdversarialOptions is sampler_options.AdversarialOptions is AdversarialOptions
+        assert samplers.SamplerOptions is sampler_options.SamplerOptions
+        assert closed_loop.ClosedLoopOptions is sampler_options.ClosedLoopOptions is ClosedLoopOptions
+        assert closed_loop.SELECTIONS == sampler_options.SELECTIONS == ("farthest", "spread", "lowest", "random")
+    config = TrainConfig(task="acrobot", budget=40, sampler=ClosedLoopOptions(episodes=3, selection="spread"))
+    today = pickle.dumps(config, protocol=0)  # protocol 0 names each class as "module\nname\n" text
+    here = b"seagul_learn.sampler_options\nClosedLoopOptions\n"
+    assert today.count(here) == 1
+    old = today.replace(here, b"seagul_learn.closed_loop\nClosedLoopOptions\n")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")
+        loaded = pickle.loads(old)
+    assert loaded == config and type(loaded.sampler) is ClosedLoopOptions and loaded.sampler.selection == "spread"
+    adversarial = pickle.dumps(AdversarialOptions(max_steps=2), protocol=0)
+    old = adversarial.replace(b"seagul_learn.sampler_options\n", b"seagul_learn.samplers\n")
+    assert old != adversarial and pickle.loads(old) == AdversarialOptions(max_steps=2)
+
+
 def test_presets_are_the_task_files_data_and_a_users_file_can_be_registered(tmp_path):
     quick = recipes.preset("acrobot", "quick")
     assert quick["budgets"] == (30, 60) and quick["grid_points"] == 8

@@ -165,3 +165,44 @@ def test_seagul_learns_public_names_resolve_and_the_config_parts_need_no_torch()
         assert getattr(seagul_learn, name) is not None, name
     with pytest.raises(AttributeError, match="has no attribute 'NoSuchName'"):
         seagul_learn.NoSuchName  # noqa: B018
+
+
+# ------------------------------------------------------------------------------- configuration without torch
+TORCH_FREE = (
+    "seagul_learn.config",
+    "seagul_learn.recipes",
+    "seagul_learn.config_parts",
+    "seagul_learn.sampler_options",
+)
+"""Modules a configuration is built and parsed with (``TrainConfig``, the recipes, the samplers' options): the
+command line and users' scripts read and check a configuration without paying torch's import."""
+
+
+def modules_loaded_by(code: str) -> list[str]:
+    """The modules of torch's family (``torch``, ``seagul_learn.value_network``) loaded after running ``code`` in a
+    fresh interpreter, where no other test's imports can hide one."""
+    watched = ["torch", "seagul_learn.value_network"]
+    probe = f"{code}\nimport json, sys\nprint(json.dumps(sorted(set({watched!r}) & set(sys.modules))))"
+    proc = subprocess.run([sys.executable, "-c", probe], capture_output=True, text=True, timeout=120)
+    assert proc.returncode == 0, proc.stderr
+    return json.loads(proc.stdout.strip().splitlines()[-1])
+
+
+@pytest.mark.parametrize("module", TORCH_FREE)
+def test_the_configuration_modules_import_without_torch(module: str) -> None:
+    assert modules_loaded_by(f"import {module}") == []
+
+
+def test_a_recipes_config_is_built_round_tripped_and_reparsed_without_torch() -> None:
+    """What ``seagul train`` does before training: a task's recipe as a TrainConfig with overrides (the closed-loop
+    sampler's options among them), its JSON form and back, without torch; the samplers' module, which runs the
+    sampling on a value network, does load it (the probe sees an indirect import)."""
+    code = (
+        "from seagul_learn.config import TrainConfig\n"
+        "from seagul_learn.sampler_options import ClosedLoopOptions\n"
+        "config = TrainConfig.recipe('acrobot', sampler=ClosedLoopOptions(episodes=3))\n"
+        "assert TrainConfig.from_dict(config.to_dict()) == config\n"
+        "assert config.sampler == 'closed-loop' and config.sampler.episodes == 3\n"
+    )
+    assert modules_loaded_by(code) == []
+    assert modules_loaded_by("import seagul_learn.samplers") == ["seagul_learn.value_network", "torch"]
