@@ -313,6 +313,24 @@ def test_a_value_function_of_another_variant_is_refused(acrobot, variant) -> Non
         mpc.set_value_function(_network(variant))
 
 
+def test_a_robot_variant_made_by_with_params_keeps_its_models_value_function(acrobot) -> None:
+    """The oracle / adaptive controller: an MPC planning with ``task.with_params(robot)`` uses the value learned
+    for ``task`` (the evaluation's ``knows_robot`` builds exactly that), through a chain of variants and a pickle."""
+    import pickle
+
+    robot = acrobot.theta * 1.1
+    known = acrobot.with_params(robot)
+    assert known.fingerprint() != acrobot.fingerprint() and known.origin_fingerprint() == acrobot.fingerprint()
+    again = pickle.loads(pickle.dumps(known.with_params(robot * 1.05)))
+    assert again.origin_fingerprint() == acrobot.fingerprint() and acrobot.origin_fingerprint() == acrobot.fingerprint()
+    net = _network(acrobot)
+    assert LimitedLookaheadMPC(known, net, 5, FAST).n_vf > 0
+    assert LimitedLookaheadMPC(again, net, 5, FAST).n_vf > 0
+    # A network trained for the variant is not one for the model it came from.
+    with pytest.raises(ValueError, match="not made from it by with_params"):
+        LimitedLookaheadMPC(acrobot, _network(known), 5, FAST)
+
+
 def test_network_files_store_the_fingerprint_and_old_files_still_load(acrobot, tmp_path: Path) -> None:
     net = _network(acrobot)
     ValueNetwork.load(net.save(tmp_path / "net.pt"))

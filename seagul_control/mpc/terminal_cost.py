@@ -27,14 +27,17 @@ from seagul_envs.tasks.base import Task
 
 
 def check_fingerprint(owner: str, vf: Any, task: Task) -> None:
-    """Raise a ValueError when ``vf`` records a task fingerprint (``task_fingerprint``) other than ``task``'s."""
+    """Raise a ValueError when ``vf`` records a task fingerprint (``task_fingerprint``) that is neither ``task``'s
+    nor that of the task ``task`` was made from by ``with_params`` (:meth:`~seagul_envs.Task.origin_fingerprint`):
+    an MPC that plans with a robot's own dynamics (``task.with_params(theta)``) may use the value learned for the
+    model it was derived from, as an adaptive or oracle controller does."""
     stored = getattr(vf, "task_fingerprint", None) or ""
-    if stored and stored != task.fingerprint():
+    if stored and stored not in (task.fingerprint(), task.origin_fingerprint()):
         raise ValueError(
             f"{owner}: the value function was trained for a task with fingerprint {stored}, but task "
             f"{task.name!r} has fingerprint {task.fingerprint()}: the same name, another variant (parameters, bounds "
-            "or costs differ). Use a value function trained for this task, or build the MPC for the task it was "
-            "trained for."
+            "or costs differ) not made from it by with_params. Use a value function trained for this task, or build "
+            "the MPC for the task it was trained for (or for task.with_params(theta) of that task)."
         )
 
 

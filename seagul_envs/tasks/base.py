@@ -31,6 +31,7 @@ FINGERPRINT_LENGTH = 16
 
 _FINGERPRINT_VERSION = b"seagul-task-fingerprint-v1"  # change it whenever the encoding below changes
 _MEMO = "_fingerprint"  # instance attribute holding the memoised fingerprint (never pickled)
+_ORIGIN = "_origin_fingerprint"  # set by with_params: the fingerprint of the task the robot variant was made from
 
 
 @dataclass(frozen=True, eq=False)
@@ -130,7 +131,10 @@ class Task:
         """The same task for another robot: the dynamics at ``theta``, everything else (costs, bounds, X0, profile)
         as here. ``theta`` is a vector in ``parameters.names`` order or a mapping ``{name: value}``; names it leaves
         out keep this task's values. ``params`` records the new values (rendering, the MuJoCo model read them), and
-        the fingerprint differs whenever the dynamics do.
+        the fingerprint differs whenever the dynamics do. The variant remembers the task it was made from
+        (:meth:`origin_fingerprint`), so a value function trained for that task is accepted by an MPC that plans
+        with the variant's dynamics (``seagul_control.mpc.check_fingerprint``), while a same-named variant made any
+        other way is refused.
 
         Raises:
             ValueError: the task declares no parameters, or ``theta`` is malformed (a wrong length, an unknown name,
@@ -145,7 +149,19 @@ class Task:
         extras = dict(self.extras)
         if space.extras is not None:
             extras.update(space.extras(params))
-        return dataclasses.replace(self, dynamics=dynamics, params=params, extras=extras)
+        variant = dataclasses.replace(self, dynamics=dynamics, params=params, extras=extras)
+        object.__setattr__(variant, _ORIGIN, self.origin_fingerprint())  # frozen dataclass: a private attribute
+        return variant
+
+    def origin_fingerprint(self) -> str:
+        """The :meth:`fingerprint` of the task this one was made from by :meth:`with_params` (through any chain of
+        ``with_params`` calls: the first task's), or this task's own fingerprint when it was made otherwise.
+
+        It travels with the task (pickling keeps it), but any other copy (``dataclasses.replace``) is a new task
+        whose origin is itself: only a robot variant of a task counts as that task's family.
+        """
+        origin = self.__dict__.get(_ORIGIN)
+        return str(origin) if origin is not None else self.fingerprint()
 
     def rk4_step_params(self, substeps: int | None = None) -> ca.Function:
         """``F(x, u, h, theta)``: :meth:`rk4_step` of the parametric dynamics ``parameters.dynamics``.
