@@ -58,7 +58,7 @@ def main(argv: list[str] | None = None) -> int:
     options: tuple[tuple[str, object], ...] = (
         ("horizon", int(shipped["horizon"])),
         ("trust_region", shipped["trust_region"]),
-        ("goal_blend", float(shipped.get("goal_blend", task.profile.mpc_goal_blend))),
+        ("goal_blend", float(shipped.get("goal_blend", task.profile.mpc.goal_blend))),
         ("jit", True),
     )
     rows: dict[str, dict[str, object]] = {}

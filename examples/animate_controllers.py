@@ -54,7 +54,7 @@ def main(cfg: Config) -> Path:
     x0 = np.array([float(v) for v in cfg.start.split(",")]) if cfg.start else hard_start(task)
     specs: list[PolicySpec] = []
     if cfg.network and not cfg.test:
-        blend = float(task.profile.mpc_goal_blend)
+        blend = float(task.profile.mpc.goal_blend)
         options = (("horizon", default_horizon(task)), ("trust_region", "none"), ("goal_blend", blend))
         specs.append(PolicySpec("mpc", f"learned {default_horizon(task)}-step MPC", cfg.network, options))
     specs.append(PolicySpec("lqr", "LQR"))

@@ -64,6 +64,7 @@ from seagul_control import LimitedLookaheadMPC
 from seagul_control.mpc import MPCOptions
 from seagul_envs import (
     EvaluationGrid,
+    MPCDefaults,
     SuccessRule,
     Task,
     TaskProfile,
@@ -169,7 +170,7 @@ def make_cartpole(params: CartPoleParams | None = None) -> Task:
             fail_on_termination=True,
         ),
         success_goal="swing up and balance the pole",
-        mpc_horizon=p.mpc_horizon,
+        mpc=MPCDefaults(horizon=p.mpc_horizon),
         # Heat maps over the cart position and the pole angle, at rest.
         grid=EvaluationGrid(coords=(0, 1), fixed=((2, 0.0), (3, 0.0)), points=5),
     )

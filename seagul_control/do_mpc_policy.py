@@ -44,7 +44,7 @@ an optional extra (``pip install 'seagul[anchors]'``); it is imported only when 
   time-varying parameter: stages after knot ``k_end = round(tau / dt)`` cost nothing, ``l_f`` is charged at
   ``x_{k_end}`` (at ``x_N`` while ``k_end > N``), and the path bounds on the knots ``1..k_end`` and the terminal
   box at ``k_end`` are do-mpc soft constraints (slacks with a linear, i.e. exact L1, penalty of the task's
-  ``profile.mpc_final_soft_weight``) in every phase: do-mpc's ``bounds`` are the same at every knot, and a knot
+  ``profile.mpc.final_soft_weight``) in every phase: do-mpc's ``bounds`` are the same at every knot, and a knot
   past the episode's end must not be bounded (the glider flies on past the perch). The project's lookahead bounds
   its knots hard; where they can be met and the weight exceeds their multipliers the two solutions coincide. The
   end knot is the episode's end only when ``tau`` is a multiple of ``dt`` (the glider's nominal 0.8 s is). With
@@ -105,7 +105,7 @@ class DoMPCPolicy:
         tol: IPOPT tolerance.
         max_solve_time: IPOPT's wall-time limit per step (s; None: none).
         soft_weight: L1 penalty of the path bounds and the terminal box in ``"mask"`` (default:
-            ``task.profile.mpc_final_soft_weight``, else 1e4).
+            ``task.profile.mpc.final_soft_weight``, else 1e4).
         solver_options: extra ``nlpsol`` options (e.g. ``{"ipopt.linear_solver": "ma27"}``).
 
     Attributes:
@@ -170,7 +170,7 @@ class DoMPCPolicy:
             raise ValueError(f"{self.name}: substeps must be >= 1, got {substeps!r}")
         self.end_phase = end_phase
         if soft_weight is None:
-            soft_weight = getattr(task.profile, "mpc_final_soft_weight", None) or 1e4
+            soft_weight = task.profile.mpc.final_soft_weight or 1e4
         self.soft_weight = float(soft_weight)
         if not (np.isfinite(self.soft_weight) and self.soft_weight > 0):
             raise ValueError(f"{self.name}: soft_weight must be a positive number, got {soft_weight!r}")

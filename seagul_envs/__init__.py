@@ -16,6 +16,7 @@ from seagul_envs.envs.task_env import TaskEnv
 from seagul_envs.registration import ENV_IDS, make_env, register_envs, register_task, task_env_id, unregister_task
 from seagul_envs.tasks import (
     EvaluationGrid,
+    MPCDefaults,
     SolverDefaults,
     SuccessRule,
     Task,
@@ -35,6 +36,7 @@ register_envs()
 __all__ = [
     "ENV_IDS",
     "EvaluationGrid",
+    "MPCDefaults",
     "SolverDefaults",
     "SuccessRule",
     "Task",

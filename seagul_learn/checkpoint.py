@@ -24,7 +24,7 @@ def keep_best(out: Path, config: TrainConfig, log: list[dict[str, Any]], collect
     """``sampler.keep_best``: save ``collecting`` as ``network_best.pt`` when the round just logged is the best deployed
     collector so far (ties: the later). The best so far is recomputed from the log (resume-safe: a redone round
     rewrites the same file)."""
-    deployed = config.closed_loop_options().trust_region or config.resolve_task().profile.mpc_trust_region
+    deployed = config.closed_loop_options().trust_region or config.resolve_task().profile.mpc.trust_region
 
     def rate(entry: dict[str, Any]) -> float | None:
         if entry.get("collector") != deployed or not entry.get("episodes"):

@@ -9,7 +9,7 @@ import pytest
 from toy_problem import ToySolver
 
 from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
-from seagul_envs import make_task
+from seagul_envs import MPCDefaults, make_task
 from seagul_learn.closed_loop import ClosedLoopOptions, collect_queries, farthest_first, snap_tau
 from seagul_learn.solving import tail_horizon
 from seagul_learn.training import (
@@ -490,7 +490,7 @@ def test_slice_fraction_starts_that_share_of_each_rounds_episodes_at_rest():
 
 def test_the_collector_deploys_the_tasks_guard_unless_told_otherwise(tmp_path):
     """``sampler.trust_region=None`` (the default): after the warm-up the sampler collects, and
-    ``sampler.keep_best`` ranks, with the guard the task deploys (``profile.mpc_trust_region``: the acrobot's "none",
+    ``sampler.keep_best`` ranks, with the guard the task deploys (``profile.mpc.trust_region``: the acrobot's "none",
     a new task's "lqr"); an explicit guard wins; the CLI spells it ``--sampler.trust-region``."""
     import dataclasses
 
@@ -500,7 +500,8 @@ def test_the_collector_deploys_the_tasks_guard_unless_told_otherwise(tmp_path):
     from seagul_learn.value_network import ValueNetwork
 
     acrobot = make_task("acrobot")
-    guarded = dataclasses.replace(acrobot, profile=dataclasses.replace(acrobot.profile, mpc_trust_region="lqr"))
+    lqr_guard = MPCDefaults(horizon=5, trust_region="lqr", goal_blend=1.0)
+    guarded = dataclasses.replace(acrobot, profile=dataclasses.replace(acrobot.profile, mpc=lqr_guard))
     pool = StartPool(np.zeros((1, acrobot.nx)), np.zeros(1), np.zeros(1, dtype=int))
     assert ClosedLoopOptions().trust_region is None
     assert ClosedLoopSampler(acrobot, pool).deployed_guard == "none"
@@ -515,7 +516,7 @@ def test_the_collector_deploys_the_tasks_guard_unless_told_otherwise(tmp_path):
     ]
     net = ValueNetwork(4, (4,), task_name="acrobot", seed=0)
     for task, saved in ((acrobot, True), (guarded, False)):
-        out = tmp_path / task.profile.mpc_trust_region
+        out = tmp_path / task.profile.mpc.trust_region
         out.mkdir()
         config = _cl_config(tmp_path, task=task, sampler__keep_best=True, sampler__trust_region=None)
         _keep_best(out, config, log, net, 100)

@@ -540,7 +540,7 @@ def test_glider_soft_final_phase_returns_a_plan_where_the_exact_perch_is_out_of_
     _, info = hard.act(x, 0.25)
     assert info.phase == "final" and not info.success and info.source != "solver"
     soft = LimitedLookaheadMPC(task, None, 10, MPCOptions(jit=False))
-    assert soft.final_soft_weight == task.profile.mpc_final_soft_weight == 1e4 and soft.final_solver == "ipopt"
+    assert soft.final_soft_weight == task.profile.mpc.final_soft_weight == 1e4 and soft.final_solver == "ipopt"
     u, info = soft.act(x, 0.25)
     assert info.phase == "final" and info.success and info.source == "solver", info.status
     assert np.all(np.abs(u) <= task.u_high)

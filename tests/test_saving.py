@@ -139,7 +139,7 @@ def test_the_resolved_options_hold_the_task_defaults(acrobot) -> None:
     assert FAST.end_phase is None and FAST.anchor_goal is None and FAST.trust_region is None
     resolved = mpc.options
     assert resolved.end_phase == "switch" and resolved.anchor_goal is True  # an equilibrium goal, no terminal box
-    assert resolved.trust_region == acrobot.profile.mpc_trust_region == mpc.trust_region
+    assert resolved.trust_region == acrobot.profile.mpc.trust_region == mpc.trust_region
     assert resolved.dt == acrobot.control_period and resolved.solver == mpc.solver == "shooting"
     assert resolved.cold_guess == "best" and resolved.multistart == "rise"
     # The resolved options rebuild the same controller.

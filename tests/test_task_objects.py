@@ -352,3 +352,33 @@ def test_a_variant_on_ray_actors(private_ray: Any, variant: Task, starts: np.nda
         variant, starts[:2], _taus(starts[:2]), workers=2, backend="ray", progress=False, solver_options=FAST
     )
     assert_same_results(local, remote)
+
+
+def test_the_mpc_defaults_are_one_typed_part_and_the_flat_names_still_work() -> None:
+    """``TaskProfile.mpc`` (:class:`MPCDefaults`) replaced four flat ``mpc_*`` fields: the old names construct and
+    read with a DeprecationWarning, bad values name the field the caller gave, and the built-in tasks' values."""
+    from seagul_envs import MPCDefaults, TaskProfile
+
+    acrobot, glider = make_task("acrobot"), make_task("glider")
+    assert acrobot.profile.mpc == MPCDefaults(horizon=5, trust_region="none", goal_blend=1.0)
+    assert glider.profile.mpc.final_soft_weight == 1e4 and glider.profile.default_horizon(glider) == 10
+    with pytest.warns(DeprecationWarning, match=r"mpc_horizon -> mpc\.horizon"):
+        old = TaskProfile(mpc_horizon=3, mpc_trust_region="box")  # type: ignore[call-arg]
+    assert old.mpc == MPCDefaults(horizon=3, trust_region="box")
+    with pytest.warns(DeprecationWarning, match=r"use TaskProfile\.mpc\.goal_blend"):
+        assert acrobot.profile.mpc_goal_blend == 1.0
+    # dataclasses.replace keeps the part and never resurrects a flat value.
+    assert dataclasses.replace(old, mpc=MPCDefaults(horizon=7)).mpc == MPCDefaults(horizon=7)
+    wall = r"TaskProfile.mpc_trust_region must be one of \['lqr', 'box', 'none'\]"
+    with pytest.warns(DeprecationWarning), pytest.raises(ValueError, match=wall):
+        TaskProfile(mpc_trust_region="wall")  # type: ignore[call-arg]
+    for bad, match in (
+        ({"horizon": 0}, "horizon must be an integer >= 1"),
+        ({"horizon": 2.5}, "horizon must be an integer >= 1"),
+        ({"goal_blend": -1.0}, "goal_blend must be a finite number >= 0"),
+        ({"final_soft_weight": 0.0}, "final_soft_weight must be a finite number > 0"),
+    ):
+        with pytest.raises(ValueError, match=match):
+            MPCDefaults(**bad)  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"TaskProfile\.mpc must be an MPCDefaults"):
+        TaskProfile(mpc={"horizon": 3})  # type: ignore[arg-type]

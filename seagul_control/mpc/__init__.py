@@ -24,7 +24,7 @@ architecture (:meth:`LimitedLookaheadMPC.set_value_function`) never rebuilds a s
 ``trust_region``; ``clamp=True`` (default) also replaces ``Vhat`` by the smooth ``max(Vhat, 0)`` (a cost-to-go is
 never negative) in each of them.
 
-The default is the task's ``profile.mpc_trust_region``: ``"none"`` for the acrobot and the glider, whose shipped
+The default is the task's ``profile.mpc.trust_region``: ``"none"`` for the acrobot and the glider, whose shipped
 networks are selected and measured unguarded (docs/experiments/closed-loop.md: 99.25 % of the acrobot grid, 91.7 % of
 the glider's), ``"lqr"`` for a new task.
 

@@ -101,15 +101,15 @@ class LimitedLookaheadMPC(TerminalCostMPC):
         if options.end_phase is None:
             resolved["end_phase"] = "shrink" if has_box else "switch"
         if options.trust_region is None:
-            resolved["trust_region"] = task.profile.mpc_trust_region
+            resolved["trust_region"] = task.profile.mpc.trust_region
         if options.cold_guess is None:
             resolved["cold_guess"] = "best" if steps == "fixed" else "rollout"
         if options.anchor_goal is None:
             resolved["anchor_goal"] = equilibrium
         if options.goal_blend is None:
-            resolved["goal_blend"] = float(getattr(task.profile, "mpc_goal_blend", 0.0)) if equilibrium else 0.0
+            resolved["goal_blend"] = float(task.profile.mpc.goal_blend) if equilibrium else 0.0
         if options.final_soft_weight is None:
-            weight = task.profile.mpc_final_soft_weight
+            weight = task.profile.mpc.final_soft_weight
             resolved["final_soft_weight"] = 0.0 if weight is None else weight  # 0: a hard box
         try:
             options = options.replace(**resolved)

@@ -97,7 +97,7 @@ class MPCOptions(OptionsBase):
     """How many extra starts (2: both input bounds)."""
     # ----- learned terminal cost
     trust_region: TrustRegion | None = None
-    """``"lqr"``, ``"box"`` or ``"none"``; None: the task's ``profile.mpc_trust_region``."""
+    """``"lqr"``, ``"box"`` or ``"none"``; None: the task's ``profile.mpc.trust_region``."""
     trust_box: tuple[tuple[float, ...], tuple[float, ...]] | None = None
     """``(low, high)`` state box of ``"box"``; None: from the value function (its training box)."""
     trust_weight: float = 100.0
@@ -108,7 +108,7 @@ class MPCOptions(OptionsBase):
     """Subtract the value function's value and gradient at the goal; None: on for a zero-cost equilibrium goal."""
     goal_blend: float | None = None
     """Scale ``c`` of the blend ``b l_f + (1 - b) Vhat``, ``b = exp(-l_f / c)`` (0: off); None: the task's
-    ``profile.mpc_goal_blend`` at an equilibrium goal, else 0."""
+    ``profile.mpc.goal_blend`` at an equilibrium goal, else 0."""
     # ----- end of the episode
     end_phase: Literal["switch", "shrink"] | None = None
     """``"switch"`` (keep the horizon, ``l_f`` past the episode end) or ``"shrink"`` (steps that end exactly at
@@ -120,7 +120,7 @@ class MPCOptions(OptionsBase):
     solver cannot impose the terminal box)."""
     final_soft_weight: float | None = None
     """Weight of the final phase's exact L1 penalty on the terminal box and path bounds (IPOPT); 0: hard bounds;
-    None: the task's ``profile.mpc_final_soft_weight``."""
+    None: the task's ``profile.mpc.final_soft_weight``."""
 
     def __post_init__(self) -> None:
         owner = "MPCOptions"

@@ -19,6 +19,7 @@ from types import ModuleType
 from seagul_envs.tasks.acrobot import AcrobotParams, make_acrobot_task
 from seagul_envs.tasks.base import Task, rk4_map, validate_task
 from seagul_envs.tasks.glider import GliderParams, make_glider_task
+from seagul_envs.tasks.mpc_defaults import MPCDefaults
 from seagul_envs.tasks.profile import (
     EvaluationGrid,
     SolverDefaults,
@@ -258,6 +259,7 @@ __all__ = [
     "AcrobotParams",
     "EvaluationGrid",
     "GliderParams",
+    "MPCDefaults",
     "SolverDefaults",
     "SuccessRule",
     "Task",

@@ -26,6 +26,7 @@ import numpy as np
 import scipy.linalg
 
 from seagul_envs.tasks.base import Task, rk4_map
+from seagul_envs.tasks.mpc_defaults import MPCDefaults
 from seagul_envs.tasks.parameters import ParameterSpace, parametric_dynamics
 from seagul_envs.tasks.profile import (
     EvaluationGrid,
@@ -67,11 +68,13 @@ def acrobot_profile(p: AcrobotParams) -> TaskProfile:
         lqr_Q=np.diag(p.Q),
         lqr_R=np.array([[p.R]]),
         env_id="SeagulAcrobot-v0",
-        mpc_horizon=5,  # paper §6: 5 steps (0.5 s)
-        # the shipped networks are selected and measured unguarded: 99.25 % of the grid
-        # (docs/experiments/closed-loop.md)
-        mpc_trust_region="none",
-        mpc_goal_blend=1.0,  # V = l_f measured while l_f <~ 1 (docs/experiments/closed-loop.md); 11 % -> 74 % unguarded
+        mpc=MPCDefaults(
+            horizon=5,  # paper §6: 5 steps (0.5 s)
+            # the shipped networks are selected and measured unguarded: 99.25 % of the grid
+            # (docs/experiments/closed-loop.md)
+            trust_region="none",
+            goal_blend=1.0,  # V = l_f measured while l_f <~ 1 (docs/experiments/closed-loop.md); 11 % -> 74 % unguarded
+        ),
         grid=EvaluationGrid(coords=(0, 1), fixed=((2, 0.0), (3, 0.0)), points=20),  # Fig. 2: (th1, th2), at rest
         heatmap_metric="final_distance",
         heatmap_caption=(

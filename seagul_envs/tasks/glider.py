@@ -22,6 +22,7 @@ import casadi as ca
 import numpy as np
 
 from seagul_envs.tasks.base import Task
+from seagul_envs.tasks.mpc_defaults import MPCDefaults
 from seagul_envs.tasks.parameters import ParameterSpace, parametric_dynamics
 from seagul_envs.tasks.profile import (
     EvaluationGrid,
@@ -78,13 +79,15 @@ def glider_profile(p: GliderParams, Qf: np.ndarray) -> TaskProfile:
         lqr_Q=Qf,
         lqr_R=0.01 * np.eye(1),
         env_id="SeagulGlider-v0",
-        mpc_horizon=max(1, round(0.25 / p.control_period)),  # paper §6: about 250 ms
-        # The final phase's exact perch (x = z = 0 at the end, fixed 25 ms steps) was out of reach on every final
-        # step of a learned MPC that perched (the shifted plan did it); soft, it converges
-        # (docs/experiments/closed-loop.md).
-        mpc_final_soft_weight=1e4,
-        # the shipped network perches unguarded on 91.7 % of the grid (docs/experiments/closed-loop.md)
-        mpc_trust_region="none",
+        mpc=MPCDefaults(
+            horizon=max(1, round(0.25 / p.control_period)),  # paper §6: about 250 ms
+            # The final phase's exact perch (x = z = 0 at the end, fixed 25 ms steps) was out of reach on every final
+            # step of a learned MPC that perched (the shifted plan did it); soft, it converges
+            # (docs/experiments/closed-loop.md).
+            final_soft_weight=1e4,
+            # the shipped network perches unguarded on 91.7 % of the grid (docs/experiments/closed-loop.md)
+            trust_region="none",
+        ),
         grid=EvaluationGrid(coords=(0, 1), points=6),  # Fig. 4: (x, z), the rest at X0's centre (dx = 7)
         heatmap_metric="cost",
         heatmap_caption="{metric} over a {n1} x {n2} grid of ({dims}) starts, seed-0 networks (Fig. 4)",

@@ -3,11 +3,11 @@
 A :class:`TaskProfile` is the ``profile`` field of every :class:`~seagul_envs.tasks.base.Task`. It holds what is
 not the optimal-control problem itself but how the library treats the task: the trajectory optimizer's attempt plan
 (:class:`SolverDefaults`), the validation set (:class:`ValidationSpec`), the episode success rule
-(:class:`SuccessRule`), the LQR weights, the experiment presets, the Gymnasium id, the default MPC horizon, the
-closed-loop evaluation grid (:class:`EvaluationGrid`) and the figures' axes and captions. The built-in tasks fill
-theirs in their own modules (``seagul_envs/tasks/acrobot.py``, ``glider.py``); a new task gets the defaults of
-every field, which are chosen to work for any task (the fields say how). No code outside the task definitions
-branches on a task's name.
+(:class:`SuccessRule`), the LQR weights, the Gymnasium id, the controller it is evaluated with
+(:class:`~seagul_envs.tasks.mpc_defaults.MPCDefaults`), the closed-loop evaluation grid (:class:`EvaluationGrid`)
+and the figures' axes and captions. The built-in tasks fill theirs in their own modules
+(``seagul_envs/tasks/acrobot.py``, ``glider.py``); a new task gets the defaults of every field, which are chosen to
+work for any task (the fields say how). No code outside the task definitions branches on a task's name.
 
 The profile is plain data (numbers, strings, tuples, small dataclasses, arrays), so it pickles with the task and
 enters :meth:`Task.fingerprint <seagul_envs.tasks.base.Task.fingerprint>`: two tasks whose solver plans differ never
@@ -23,9 +23,13 @@ import operator
 import warnings
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field, replace
-from typing import TYPE_CHECKING, Any, Literal
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from seagul_envs.tasks.mpc_defaults import LEGACY_NAMES as _MPC_LEGACY
+from seagul_envs.tasks.mpc_defaults import TRUST_REGIONS as TRUST_REGIONS  # re-exported
+from seagul_envs.tasks.mpc_defaults import MPCDefaults
 
 if TYPE_CHECKING:
     from seagul_envs.tasks.base import Task
@@ -39,8 +43,6 @@ PLAN_GUESSES = ("line", "goal", "hold", "kinematic")
 """Initial guesses an attempt, or :attr:`SolverDefaults.multi_start_guesses`, may name."""
 MULTI_START = ("never", "on_suspect", "always")
 """Values of :attr:`SolverDefaults.multi_start`."""
-TRUST_REGIONS = ("lqr", "box", "none")
-"""Values of :attr:`TaskProfile.mpc_trust_region`."""
 HEATMAP_METRICS = ("final_distance", "cost")
 """Values of :attr:`TaskProfile.heatmap_metric`."""
 
@@ -394,19 +396,9 @@ class TaskProfile:
     """Gymnasium id of the system's own env (the built-ins'); None: ``seagul_envs.make_env`` gives a ``TaskEnv``.
     Episodes always run in ``make_env(task)``, which makes this id with the task itself (so a variant is simulated
     as given)."""
-    mpc_horizon: int | None = None
-    """Default lookahead steps of the limited-lookahead MPC (None: about 250 ms, ``round(0.25 / control_period)``)."""
-    mpc_trust_region: Literal["lqr", "box", "none"] = "lqr"
-    """Default guard of the limited-lookahead MPC's learned terminal cost (``"lqr"``, ``"box"`` or ``"none"``;
-    ``seagul_control.mpc``): ``"lqr"`` until a task's learned values are measured to work on their own."""
-    mpc_goal_blend: float = 0.0
-    """Default ``goal_blend`` of the limited-lookahead MPC (value units; 0 = off): below about this value of ``l_f``
-    the task's terminal quadratic is the value (equilibrium goals only; docs/experiments/closed-loop.md)."""
-    mpc_final_soft_weight: float | None = None
-    """Default ``final_soft_weight`` of the limited-lookahead MPC's final phase (the last ``horizon`` steps, which
-    end at the episode end inside the terminal box): None imposes the box and path bounds as bounds; a weight makes
-    them the exact L1 penalty (IPOPT), so the final phase always returns the plan that ends closest to the box
-    instead of failing when the box is out of exact reach (glider: 1e4; docs/experiments/closed-loop.md)."""
+    mpc: MPCDefaults = field(default_factory=MPCDefaults)
+    """The controller the task is evaluated with: its limited-lookahead MPC's defaults (horizon, trust region, goal
+    blend, final soft weight), for whatever ``seagul_control.mpc.MPCOptions`` leave at None."""
     grid: EvaluationGrid = field(default_factory=EvaluationGrid)
     """The closed-loop start grid."""
     heatmap_metric: str = "final_distance"
@@ -417,10 +409,8 @@ class TaskProfile:
     """Record episodes' states and plot their paths (None: no trajectory figure)."""
 
     def __post_init__(self) -> None:
-        if self.mpc_trust_region not in TRUST_REGIONS:
-            raise ValueError(
-                f"TaskProfile.mpc_trust_region must be one of {list(TRUST_REGIONS)}, got {self.mpc_trust_region!r}"
-            )
+        if not isinstance(self.mpc, MPCDefaults):
+            raise ValueError(f"TaskProfile.mpc must be an MPCDefaults, got {type(self.mpc).__name__}")
         if self.heatmap_metric not in HEATMAP_METRICS:
             raise ValueError(
                 f"TaskProfile.heatmap_metric must be one of {list(HEATMAP_METRICS)}, got {self.heatmap_metric!r}"
@@ -454,10 +444,34 @@ class TaskProfile:
         return self.success_goal if self.success_goal is not None else f"reach the goal ({self.describe_success(task)})"
 
     def default_horizon(self, task: Task) -> int:
-        """:attr:`mpc_horizon`, or ``max(1, round(0.25 / task.control_period))`` steps."""
-        if self.mpc_horizon is not None:
-            return int(self.mpc_horizon)
-        return max(1, round(0.25 / task.control_period))
+        """``mpc.horizon``, or ``max(1, round(0.25 / task.control_period))`` steps."""
+        return self.mpc.horizon_for(task.control_period)
+
+    # Deprecated flat names of the MPC defaults (read-only; TaskProfile(mpc_horizon=...) still constructs).
+    @property
+    def mpc_horizon(self) -> int | None:
+        """Deprecated: ``mpc.horizon``."""
+        return self._moved_mpc("mpc_horizon")  # type: ignore[no-any-return]
+
+    @property
+    def mpc_trust_region(self) -> str:
+        """Deprecated: ``mpc.trust_region``."""
+        return self._moved_mpc("mpc_trust_region")  # type: ignore[no-any-return]
+
+    @property
+    def mpc_goal_blend(self) -> float:
+        """Deprecated: ``mpc.goal_blend``."""
+        return self._moved_mpc("mpc_goal_blend")  # type: ignore[no-any-return]
+
+    @property
+    def mpc_final_soft_weight(self) -> float | None:
+        """Deprecated: ``mpc.final_soft_weight``."""
+        return self._moved_mpc("mpc_final_soft_weight")  # type: ignore[no-any-return]
+
+    def _moved_mpc(self, name: str) -> Any:
+        new = _MPC_LEGACY[name]
+        warnings.warn(f"TaskProfile.{name} is deprecated; use TaskProfile.mpc.{new}", DeprecationWarning, stacklevel=3)
+        return getattr(self.mpc, new)
 
     def lqr_weights(self, task: Task, time_varying: bool) -> tuple[np.ndarray, np.ndarray]:
         """``(Q, R)`` of the LQR reference (stationary at an equilibrium goal, else tracking; docs/reference/spec.md
@@ -523,8 +537,8 @@ class TaskProfile:
             value = getattr(self, name)
             if value is not None and value.shape != shape:
                 out.append(f"profile.{name} must have shape {shape}, got {value.shape}")
-        if self.mpc_horizon is not None and (isinstance(self.mpc_horizon, bool) or int(self.mpc_horizon) < 1):
-            out.append(f"profile.mpc_horizon must be an integer >= 1, got {self.mpc_horizon!r}")
+        if not isinstance(self.mpc, MPCDefaults):
+            out.append(f"profile.mpc must be an MPCDefaults, got {type(self.mpc).__name__}")
         if not isinstance(self.grid, EvaluationGrid):
             out.append(f"profile.grid must be an EvaluationGrid, got {type(self.grid).__name__}")
         else:
@@ -536,8 +550,6 @@ class TaskProfile:
                 out.append(f"profile.grid.points must be >= 1, got {self.grid.points}")
             if self.grid.coords is None and nx < 2:
                 out.append("profile.grid.coords: a task with one state coordinate needs an explicit grid")
-        if self.mpc_trust_region not in ("lqr", "box", "none"):
-            out.append(f"profile.mpc_trust_region must be 'lqr', 'box' or 'none', got {self.mpc_trust_region!r}")
         if self.heatmap_metric not in ("final_distance", "cost"):
             out.append(f"profile.heatmap_metric must be 'final_distance' or 'cost', got {self.heatmap_metric!r}")
         if self.trajectory_plot is not None:
@@ -547,6 +559,38 @@ class TaskProfile:
             if not isinstance(fields_, dict):
                 out.append(f"profile.presets[{name!r}] must be a mapping of Preset fields")
         return out
+
+
+def _accept_flat_mpc_names(init: Callable[..., None]) -> Callable[..., None]:
+    """Wrap the dataclass ``__init__`` so ``TaskProfile(mpc_horizon=5, ...)`` keeps working: the former flat names
+    become :attr:`TaskProfile.mpc`'s fields, with a ``DeprecationWarning``."""
+
+    def __init__(self: TaskProfile, *args: Any, **kwargs: Any) -> None:
+        flat = {name: kwargs.pop(name) for name in _MPC_LEGACY if name in kwargs}
+        if flat:
+            moved = ", ".join(f"{name} -> mpc.{_MPC_LEGACY[name]}" for name in flat)
+            warnings.warn(
+                f"TaskProfile's flat MPC defaults are deprecated ({moved}); pass mpc=MPCDefaults(...) "
+                "(seagul_envs.tasks.mpc_defaults)",
+                DeprecationWarning,
+                stacklevel=2,
+            )
+            base = kwargs.get("mpc", MPCDefaults())
+            for name, value in flat.items():  # each error names the field the caller gave
+                try:
+                    base = replace(base, **{_MPC_LEGACY[name]: value})
+                except ValueError as exc:
+                    message = str(exc).replace(f"MPCDefaults.{_MPC_LEGACY[name]}", f"TaskProfile.{name}")
+                    raise ValueError(message) from None
+            kwargs["mpc"] = base
+        init(self, *args, **kwargs)
+
+    __init__.__doc__ = init.__doc__
+    __init__.__wrapped__ = init  # type: ignore[attr-defined]
+    return __init__
+
+
+TaskProfile.__init__ = _accept_flat_mpc_names(TaskProfile.__init__)  # type: ignore[method-assign]
 
 
 def __getattr__(name: str) -> Any:

@@ -48,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--trust-region",
         choices=("lqr", "box", "none"),
         default=None,
-        help="guard of the learned terminal cost (default: the task's profile.mpc_trust_region; acrobot and glider: "
+        help="guard of the learned terminal cost (default: the task's profile.mpc.trust_region; acrobot and glider: "
         "none)",
     )
     parser.add_argument(
