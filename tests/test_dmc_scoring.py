@@ -16,6 +16,7 @@ from seagul_control import spong
 from seagul_control.dmc import (
     ACTION_TOLERANCE,
     DMC_ENV_IDS,
+    DMC_TASKS,
     EPISODE_STEPS,
     PredictController,
     dmc_env_id,
@@ -155,3 +156,17 @@ def test_suite_model_is_mujocos_dynamics() -> None:
             mujoco.mj_forward(model.model, model.data)
             np.testing.assert_allclose(qacc, model.data.qacc, rtol=1e-8, atol=1e-8)
         assert model.energy(np.zeros(model.nq + model.nv)) == pytest.approx(model.top_energy)
+
+
+def test_seagul_lqr_policy_runs_through_the_adapter() -> None:
+    """A seagul policy of the suite's CasADi task acts on dm_control's physics state through PredictController."""
+    from seagul_control.lqr import LQRPolicy
+    from seagul_envs import make_task
+
+    task = make_task(DMC_TASKS["dm_control/acrobot-swingup-v0"])
+    policy = LQRPolicy(task)
+    episode = run_dmc_episode("acrobot-swingup", PredictController(policy), seed=4, hold=1, record=True)
+    assert episode.states is not None and episode.actions is not None
+    for k in (0, 1, 500):
+        x = np.asarray(episode.states[k], dtype=np.float32).astype(float)  # the observation's float32 state
+        np.testing.assert_allclose(episode.actions[k], policy.action(x, 5.0), rtol=1e-6, atol=1e-9)
