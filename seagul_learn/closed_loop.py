@@ -381,8 +381,8 @@ class ClosedLoopSampler:
     @property
     def deployed_guard(self) -> str:
         """The guard of the deployed controller the sampler collects with after the warm-up rounds: ``trust_region``,
-        or the task's ``profile.mpc_trust_region`` when that is None."""
-        return self.options.trust_region or self.task.profile.mpc_trust_region
+        or the task's ``profile.mpc.trust_region`` when that is None."""
+        return self.options.trust_region or self.task.profile.mpc.trust_region
 
     def collects_deployed(self, num_solves: int) -> bool:
         """Whether a round of ``num_solves`` collects with the deployed guard (``trust_region``, after the

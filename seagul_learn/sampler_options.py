@@ -120,7 +120,7 @@ class ClosedLoopOptions(SamplerOptions):
     """Lookahead steps of the collecting MPC (None: the task's default, as deployed)."""
     trust_region: Literal["lqr", "box", "none"] | None = None
     """Guard of the collecting (= deployed) MPC after the warm-up rounds; None = the task's deployed default
-    (``profile.mpc_trust_region``, as ``LimitedLookaheadMPC`` resolves it)."""
+    (``profile.mpc.trust_region``, as ``LimitedLookaheadMPC`` resolves it)."""
     warmup_rounds: int = 1
     """Rounds at the start that collect with the ``"lqr"``-guarded MPC instead."""
     selection: Selection = "farthest"

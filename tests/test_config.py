@@ -320,10 +320,11 @@ def test_the_profile_no_longer_holds_recipes_but_old_readers_and_users_tasks_wor
 
 
 def test_profile_settings_are_validated():
+    from seagul_envs.tasks import MPCDefaults
     from seagul_envs.tasks.profile import SolverDefaults, TaskProfile
 
-    with pytest.raises(ValueError, match=r"mpc_trust_region must be one of \['lqr', 'box', 'none'\]"):
-        TaskProfile(mpc_trust_region="wall")  # type: ignore[arg-type]
+    with pytest.raises(ValueError, match=r"trust_region must be one of \['lqr', 'box', 'none'\]"):
+        TaskProfile(mpc=MPCDefaults(trust_region="wall"))  # type: ignore[arg-type]
     with pytest.raises(ValueError, match="heatmap_metric"):
         TaskProfile(heatmap_metric="colour")
     with pytest.raises(ValueError, match=r"attempt 'snopt:line'"):

@@ -431,7 +431,7 @@ def test_methods_shipped_trains_the_tasks_recipe_on_its_schedule(tmp_path: Path)
     assert list(uniform["snapshots"]) == [1000]
     task = make_task("acrobot")
     options = dict(experiment.deployment())
-    assert options["trust_region"] == task.profile.mpc_trust_region
+    assert options["trust_region"] == task.profile.mpc.trust_region
     assert options["horizon"] == task.profile.default_horizon(task) and "solver" not in options
     assert reference_method(preset.methods) == "shipped" and versus_key("shipped") == "vs_shipped"
     # The paper's presets keep their schedule and the experiment's own deployment.

@@ -132,7 +132,7 @@ class BenchConfig:
 
         defaults = flat_settings(TrainConfig())
         task_obj = make_task(task)
-        blend = float(task_obj.profile.mpc_goal_blend)
+        blend = float(task_obj.profile.mpc.goal_blend)
         horizon = default_horizon(task_obj)
         grid = task_obj.profile.grid.points
         if quick:

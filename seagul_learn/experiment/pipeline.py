@@ -222,7 +222,7 @@ class Experiment:
     def deployment(self) -> tuple[tuple[str, Any], ...]:
         """``LimitedLookaheadMPC`` options every learned network is evaluated with: the preset's horizon, IPOPT and
         the ``lqr`` guard; a run with ``shipped`` deploys as the closed-loop benchmark measured the recipe (the
-        task's guard ``profile.mpc_trust_region`` and goal blend, the MPC's default solver).
+        task's guard ``profile.mpc.trust_region`` and goal blend, the MPC's default solver).
 
         IPOPT, not fatrop: fatrop can loop without end inside a single solve from a shifted warm start at an extreme
         state (docs/experiments/closed-loop.md); IPOPT's max_iter bounds every solve. Its steps are slower, so step
@@ -233,7 +233,7 @@ class Experiment:
         horizon = self.preset.mpc_horizon
         if SHIPPED_METHOD in self.preset.methods:
             profile = self.task.profile
-            return deployment_options(horizon, profile.mpc_trust_region, float(profile.mpc_goal_blend))
+            return deployment_options(horizon, profile.mpc.trust_region, float(profile.mpc.goal_blend))
         return deployment_options(horizon, "lqr", solver="ipopt")
 
     def train_jobs(self) -> list[tuple[str, Any]]:
