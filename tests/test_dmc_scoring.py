@@ -170,3 +170,43 @@ def test_seagul_lqr_policy_runs_through_the_adapter() -> None:
     for k in (0, 1, 500):
         x = np.asarray(episode.states[k], dtype=np.float32).astype(float)  # the observation's float32 state
         np.testing.assert_allclose(episode.actions[k], policy.action(x, 5.0), rtol=1e-6, atol=1e-9)
+
+
+def test_catch_gain_equals_seagul_lqr_of_the_casadi_task() -> None:
+    """The classical controllers' LQR (MuJoCo linearised by finite differences) is seagul's LQRPolicy of the
+    suite's CasADi task with the same weights: two independent models of one MJCF agree."""
+    from seagul_control.lqr import LQRPolicy
+    from seagul_envs import make_task
+
+    controller = spong.SpongAcrobotController()
+    p = controller.params
+    policy = LQRPolicy(make_task("dmc_acrobot"), Q=np.diag(p.lqr_q), R=np.array([[p.lqr_r]]))
+    np.testing.assert_allclose(controller.lqr.K, policy.K, rtol=1e-5)
+
+
+@pytest.mark.parametrize(("seed", "measured"), [(100, 74.9), (101, 182.3)])
+def test_spong_swing_up_beats_doing_nothing_on_the_acrobot(seed: int, measured: float) -> None:
+    """Spong's swing-up scores well above zero action (measured: 74.9 and 182.3 against 8.4 and 21.3 for zero
+    action, seeds 100 and 101); the thresholds leave a third of the measured score as margin."""
+    score = run_dmc_episode("acrobot-swingup", spong.SpongAcrobotController(), seed).score
+    zero = run_dmc_episode("acrobot-swingup", lambda x, t: np.zeros(1), seed).score
+    assert score > max(3.0 * zero, 0.66 * measured)
+
+
+@pytest.mark.parametrize(
+    ("env_id", "controller", "threshold"),
+    [
+        # measured on seed 100: 916.0, 855.7, 778.0 (zero action: 0.0, 0.0, 0.0)
+        ("pendulum-swingup", spong.PendulumEnergyController, 800.0),
+        ("cartpole-swingup", spong.AstromFurutaCartpoleController, 800.0),
+        ("cartpole-swingup_sparse", spong.AstromFurutaCartpoleController, 700.0),
+    ],
+)
+def test_energy_swing_ups_balance(env_id: str, controller: type, threshold: float) -> None:
+    episode = run_dmc_episode(env_id, controller(), 100, record=True)
+    assert episode.score > threshold
+    assert episode.states is not None
+    # Upright and still at the end: the LQR caught it.
+    final = np.asarray(episode.states[-1])
+    angle = final[0] if env_id.startswith("pendulum") else final[1]
+    assert abs(float(spong.wrap_angle(angle))) < 0.05 and np.all(np.abs(final[len(final) // 2 :]) < 0.1)
