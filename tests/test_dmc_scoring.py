@@ -4,6 +4,7 @@ refused, and the classical controllers beat doing nothing by margins measured on
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
@@ -210,3 +211,22 @@ def test_energy_swing_ups_balance(env_id: str, controller: type, threshold: floa
     final = np.asarray(episode.states[-1])
     angle = final[0] if env_id.startswith("pendulum") else final[1]
     assert abs(float(spong.wrap_angle(angle))) < 0.05 and np.all(np.abs(final[len(final) // 2 :]) < 0.1)
+
+
+def test_episodes_share_one_env_and_serialise() -> None:
+    import json
+
+    from seagul_control.dmc import run_dmc_episodes
+
+    episodes = run_dmc_episodes("pendulum-swingup", lambda x, t: np.zeros(1), [0, 1, 0])
+    assert [e.seed for e in episodes] == [0, 1, 0]
+    assert episodes[0] == dataclasses.replace(
+        episodes[2],
+        wall_s=episodes[0].wall_s,
+        decision_ms_median=episodes[0].decision_ms_median,
+        decision_ms_p95=episodes[0].decision_ms_p95,
+    )
+    row = json.loads(json.dumps(episodes[1].to_dict()))
+    assert row["score"] == episodes[1].score and len(row["rewards"]) == EPISODE_STEPS and row["states"] is None
+    with pytest.raises(dataclasses.FrozenInstanceError):
+        episodes[0].score = 1.0  # type: ignore[misc]
