@@ -205,4 +205,7 @@ def test_a_recipes_config_is_built_round_tripped_and_reparsed_without_torch() ->
         "assert config.sampler == 'closed-loop' and config.sampler.episodes == 3\n"
     )
     assert modules_loaded_by(code) == []
+    # The package's own names for them too (``seagul_learn.TrainConfig``, ``seagul_learn.ClosedLoopOptions``).
+    package = "import seagul_learn as sl\nsl.TrainConfig.recipe('glider', sampler=sl.ClosedLoopOptions(episodes=2))\n"
+    assert modules_loaded_by(package) == []
     assert modules_loaded_by("import seagul_learn.samplers") == ["seagul_learn.value_network", "torch"]

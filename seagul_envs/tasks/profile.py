@@ -451,22 +451,22 @@ class TaskProfile:
     @property
     def mpc_horizon(self) -> int | None:
         """Deprecated: ``mpc.horizon``."""
-        return self._moved_mpc("mpc_horizon")  # type: ignore[no-any-return]
+        return self._moved_mpc("mpc_horizon")
 
     @property
     def mpc_trust_region(self) -> str:
         """Deprecated: ``mpc.trust_region``."""
-        return self._moved_mpc("mpc_trust_region")  # type: ignore[no-any-return]
+        return self._moved_mpc("mpc_trust_region")
 
     @property
     def mpc_goal_blend(self) -> float:
         """Deprecated: ``mpc.goal_blend``."""
-        return self._moved_mpc("mpc_goal_blend")  # type: ignore[no-any-return]
+        return self._moved_mpc("mpc_goal_blend")
 
     @property
     def mpc_final_soft_weight(self) -> float | None:
         """Deprecated: ``mpc.final_soft_weight``."""
-        return self._moved_mpc("mpc_final_soft_weight")  # type: ignore[no-any-return]
+        return self._moved_mpc("mpc_final_soft_weight")
 
     def _moved_mpc(self, name: str) -> Any:
         new = _MPC_LEGACY[name]

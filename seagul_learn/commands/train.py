@@ -164,8 +164,7 @@ def _split_equals(argv: Sequence[str]) -> list[str]:
 
 def _is_bool_field(name: str) -> bool:
     """Whether the flat field ``name`` was a flag (``--name`` / ``--no-name``, no value)."""
-    # seagul_learn.config imports torch: not at module level, so that `seagul --help` stays fast (start-up time).
-    from seagul_learn.config import SAMPLER_OPTIONS
+    from seagul_learn.config import SAMPLER_OPTIONS  # tyro and the recipes load only when a flag is translated
 
     part, field_name, owner = LEGACY_NAMES[name]
     cls = SAMPLER_OPTIONS[str(owner)] if part == "sampler" else SECTIONS[str(part)]
