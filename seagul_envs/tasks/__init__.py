@@ -18,6 +18,7 @@ from types import ModuleType
 
 from seagul_envs.tasks.acrobot import AcrobotParams, make_acrobot_task
 from seagul_envs.tasks.base import Task, rk4_map, validate_task
+from seagul_envs.tasks.dmc import DMC_TASK_FACTORIES
 from seagul_envs.tasks.glider import GliderParams, make_glider_task
 from seagul_envs.tasks.mpc_defaults import MPCDefaults
 from seagul_envs.tasks.profile import (
@@ -32,6 +33,7 @@ from seagul_envs.tasks.profile import (
 TASK_FACTORIES: dict[str, Callable[[], Task]] = {
     "acrobot": make_acrobot_task,
     "glider": make_glider_task,
+    **DMC_TASK_FACTORIES,  # the DeepMind Control Suite models: dmc_acrobot, dmc_cartpole, dmc_pendulum
 }
 """Every task name of this process and its factory: the built-ins plus the ones added by ``register_task``."""
 
