@@ -31,7 +31,7 @@ Actions are checked, not silently changed: dm_control clips nothing itself (MuJo
 :data:`ACTION_TOLERANCE` raises ``ValueError`` naming the bound; an excess up to that tolerance (a solver's round-off
 on a saturated input) is clipped onto the bound. NaN or infinite actions, and actions of the wrong size, raise.
 
-``dm_control`` and ``shimmy`` are optional (not seagul dependencies); they are imported when an env is made, and
+``dm_control`` and ``shimmy`` are optional (the ``seagul[dmc]`` extra); they are imported when an env is made, and
 their absence raises ``ImportError`` saying what to install.
 """
 
@@ -107,9 +107,7 @@ def make_dmc_env(env_id: str, **kwargs: Any) -> gym.Env:
         importlib.import_module("dm_control.suite")
         importlib.import_module("shimmy")
     except ImportError as exc:
-        raise ImportError(
-            f"{full} needs dm_control and shimmy (pip install 'dm_control>=1.0' 'shimmy[dm-control]>=2'): {exc}"
-        ) from exc
+        raise ImportError(f"{full} needs dm_control and shimmy (pip install 'seagul[dmc]'): {exc}") from exc
     return gym.make(full, **kwargs)
 
 

@@ -88,7 +88,7 @@ class SuiteModel:
         try:
             suite_module = importlib.import_module(f"dm_control.suite.{domain}")
         except ImportError as exc:
-            raise ImportError(f"the {domain} model is dm_control's (pip install 'dm_control>=1.0'): {exc}") from exc
+            raise ImportError(f"the {domain} model is dm_control's (pip install 'seagul[dmc]'): {exc}") from exc
         xml, assets = suite_module.get_model_and_assets()
         self._mujoco = mujoco
         self.domain = domain

@@ -10,8 +10,8 @@ import math
 import numpy as np
 import pytest
 
-pytest.importorskip("dm_control.suite", reason="dm_control is optional: pip install 'dm_control>=1.0'")
-pytest.importorskip("shimmy", reason="shimmy wraps dm_control for Gymnasium: pip install 'shimmy[dm-control]>=2'")
+pytest.importorskip("dm_control.suite", reason="dm_control is optional: pip install 'seagul[dmc]'")
+pytest.importorskip("shimmy", reason="shimmy wraps dm_control for Gymnasium: pip install 'seagul[dmc]'")
 
 from seagul_control import spong
 from seagul_control.dmc import (
