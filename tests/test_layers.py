@@ -85,7 +85,7 @@ def imported_packages(path: Path) -> set[str]:
     return found
 
 
-DEPRECATED_PATHS = {"seagul_envs/tasks/profile.py": ["seagul_learn"]}
+DEPRECATED_PATHS = {"seagul_envs/tasks/profile_legacy.py": ["seagul_learn"]}
 """Modules whose deprecated names still read an upper layer's data inside the function that serves them (and are
 listed here so that a new one is a decision): ``TaskProfile.presets``/``train_recipe`` read
 ``seagul_learn.recipes``."""
