@@ -120,6 +120,11 @@ CURRENT: dict[str, tuple[str, str]] = {
         "the glider's validation errors, 5 seeds, Sobolev weight 0.1",
         "python benchmarks/bench_sample_efficiency.py --tasks glider --seeds 5 --sobolev-weight 0.1",
     ),
+    "dmc.json": (
+        "the DeepMind Control Suite swing-ups scored by dm_control's own reward on its episodes (reset seeds 0-9): "
+        "the classical swing-ups (energy shaping, Astrom-Furuta, Spong), zero and random actions, seagul's LQR",
+        "python benchmarks/bench_dmc.py --json benchmarks/results/dmc.json",
+    ),
     "networks/": ("value networks: the shipped ones and one representative seed of each compared sampler", ""),
     "models/": ("the shipped SB3 models (PPO and SAC per task)", ""),
 }
@@ -558,6 +563,59 @@ def section_rl() -> str:
     return "\n".join(out)
 
 
+DMC_TASKS = ("pendulum-swingup", "cartpole-swingup", "cartpole-swingup_sparse", "acrobot-swingup")
+DMC_LABELS = {
+    "zero": "zero action",
+    "random": "uniform random action",
+    "lqr": "seagul `LQRPolicy` (no swing-up)",
+    "energy": "energy shaping + LQR catch",
+    "astrom_furuta": "Astrom-Furuta energy control + LQR catch",
+    "spong": "Spong's energy pumping + LQR catch",
+}
+
+
+def _dmc_cell(row: Mapping[str, Any] | None) -> str:
+    return "" if row is None else f"{row['mean']:.0f} ± {row['std']:.0f}"
+
+
+def section_dmc() -> str:
+    """The suite's swing-ups: our controllers' scores (``dmc.json``, ``dmc_reference.json`` when present) and the
+    published ones (``dmc_published.json`` when present), all on dm_control's own reward (0..1000)."""
+    data = load("dmc.json")
+    tasks = data["tasks"]
+    out = ["## DeepMind Control Suite swing-ups", ""]
+    out.append(
+        "Scored by dm_control's own reward on dm_control's own episodes (`gym.make(\"dm_control/<task>-v0\")` "
+        "through shimmy: its reset distribution, 1,000 control steps, the score is the sum of rewards, 0 to "
+        f"1000), mean ± std over reset seeds {data['seeds'][0]}-{data['seeds'][-1]}. The classical controllers' "
+        f"gains were tuned on reset seeds {data['tuning_seeds'][0]}-{data['tuning_seeds'][-1]} only. seagul's "
+        "models of the suite's physics (`make_task(\"dmc_acrobot\")`, ...) are described in "
+        "[the suite tasks](tutorials/dmc-tasks.md)."
+    )
+    rows_by: dict[str, dict[str, Mapping[str, Any]]] = {}
+    for env_id, block in tasks.items():
+        name = env_id.split("/")[-1].removesuffix("-v0")
+        for r in block["rows"]:
+            rows_by.setdefault(r["controller"], {})[name] = r
+    reference = (RESULTS / "dmc_reference.json").exists() and load("dmc_reference.json")
+    rows = []
+    if reference:
+        ref = {env_id.split("/")[-1].removesuffix("-v0"): b for env_id, b in reference["tasks"].items()}
+        rows.append(["full-horizon reference (true model, re-planned)", *[_dmc_cell(ref.get(t)) for t in DMC_TASKS]])
+    for controller, per_task in rows_by.items():
+        rows.append([DMC_LABELS.get(controller, controller), *[_dmc_cell(per_task.get(t)) for t in DMC_TASKS]])
+    out += ["", table(["controller", *DMC_TASKS], rows), "",
+            f"Command: `{data['command']}` ({machine_line(data.get('machine'))})."]
+    if (RESULTS / "dmc_published.json").exists():
+        pub = load("dmc_published.json")["scores"]
+        prow = [[p["task"], p["method"], f"{p['score']:.0f}", f"{p['env_steps']:,}", p.get("observations", ""),
+                 p.get("seeds") or "", p["source"]] for p in pub if p["task"] in DMC_TASKS]
+        out += ["", "Published scores on the same tasks (`benchmarks/results/dmc_published.json`; each number's "
+                "source and budget in environment steps):", "",
+                table(["task", "method", "score", "env steps", "observations", "seeds", "source"], prow)]
+    return "\n".join(out)
+
+
 def section_robust() -> str:
     b = load("param_adversary.json")["acrobot"]
     out = ["## Robots that differ from the model", ""]
@@ -610,7 +668,7 @@ def section_speed() -> str:
 
 def results_page() -> str:
     sections = [section_baselines(), section_controllers(), section_success_per_solve(), section_robust(), section_rl(),
-                section_sample_efficiency(), section_speed()]
+                section_dmc(), section_sample_efficiency(), section_speed()]
     intro = (
         "# Results\n\n" + GENERATED + "\n\n"
         "Every number on this page is read from a committed file under `benchmarks/results/` by "
