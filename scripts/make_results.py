@@ -610,7 +610,7 @@ def section_dmc() -> str:
         pub = load("dmc_published.json")["scores"]
         prow = [[p["task"], p["method"], f"{p['score']:.0f}", f"{p['env_steps']:,}", p.get("observations", ""),
                  p.get("seeds") or "", p["source"]] for p in pub if p["task"] in DMC_TASKS]
-        out += ["", "Published scores on the same tasks (`benchmarks/results/dmc_published.json`; each number's "
+        out += ["", "Published scores on the same tasks (`dmc_published.json` beside the other results; each number's "
                 "source and budget in environment steps):", "",
                 table(["task", "method", "score", "env steps", "observations", "seeds", "source"], prow)]
     return "\n".join(out)
