@@ -6,7 +6,8 @@ Observations are ``[x, time_to_go]`` as the seagul envs emit them (single ``(nx 
 
 * :class:`LQRPolicy` for a task whose goal is an equilibrium (the acrobot): ``u = clip(-K (x - x*))`` with ``K``
   from the discrete algebraic Riccati equation of the **env's own discretisation** (zero-order hold over the
-  control period, the simulator's RK4 substeps), stage weights ``dt Q`` and ``dt R`` (the task's running cost).
+  control period, the simulator's RK4 substeps), stage weights ``dt Q`` and ``dt R`` (the task's running cost);
+  the task's periodic angles (``task.periodic``) enter ``x - x*`` wrapped to ``[-pi, pi)``.
 * For the glider (no equilibrium at the perch) :class:`LQRPolicy` is a time-varying LQR: one full-horizon solve at
   the nominal start with a fixed step equal to the control period gives ``(x_k, u_k)`` on the control grid; the
   backward Riccati recursion of the linearised one-period maps gives ``K_k``, and the feedback at time to go
@@ -164,7 +165,7 @@ class LQRPolicy:
     def action(self, x: np.ndarray, tau: float) -> np.ndarray:
         """The clipped feedback input for state ``x`` and time to go ``tau``."""
         if self.nominal is None:
-            u = -self.K @ (x - self.task.goal)
+            u = -self.K @ self.task.state_error(x)  # periodic angles wrapped: a full turn is the same state
         else:
             n = self.nominal.controls.shape[0]
             k = int(np.clip(n - round(tau / self.dt), 0, n - 1))

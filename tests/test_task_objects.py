@@ -382,3 +382,25 @@ def test_the_mpc_defaults_are_one_typed_part_and_the_flat_names_still_work() -> 
             MPCDefaults(**bad)  # type: ignore[arg-type]
     with pytest.raises(ValueError, match=r"TaskProfile\.mpc must be an MPCDefaults"):
         TaskProfile(mpc={"horizon": 3})  # type: ignore[arg-type]
+
+
+def test_periodic_angles_are_validated_wrapped_and_fingerprinted_only_when_declared() -> None:
+    """``Task.periodic``: the wrapped error ``state_error``, the LQR that does not care about full turns, the
+    fingerprint that an empty declaration leaves as it was, and the checks of ``validate_task``."""
+    from seagul_control.lqr import LQRPolicy
+    from seagul_envs import validate_task
+
+    plain = make_task("dmc_pendulum")
+    spinning = dataclasses.replace(plain, periodic=(0,))
+    assert dataclasses.replace(plain, periodic=()).fingerprint() == plain.fingerprint() != spinning.fingerprint()
+    x = np.array([0.3 + 4 * np.pi, -1.0])
+    np.testing.assert_allclose(spinning.state_error(x), [0.3, -1.0], atol=1e-12)
+    np.testing.assert_allclose(plain.state_error(x), x - plain.goal)
+    batch = np.stack([x, x + np.array([2 * np.pi, 0.0])])
+    np.testing.assert_allclose(spinning.state_error(batch), [[0.3, -1.0]] * 2, atol=1e-12)
+    lqr = LQRPolicy(spinning)
+    np.testing.assert_allclose(lqr.action(x, 1.0), lqr.action(np.array([0.3, -1.0]), 1.0), atol=1e-12)
+    validate_task(spinning)
+    for bad in ((2,), (0, 0), ("0",), (True,)):
+        with pytest.raises(ValueError, match="periodic must"):
+            validate_task(dataclasses.replace(plain, periodic=bad))  # type: ignore[arg-type]

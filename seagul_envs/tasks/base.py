@@ -95,6 +95,11 @@ class Task:
     """How the library treats the task beyond its problem: solver plan, validation set, success rule, LQR weights,
     presets, Gymnasium id, MPC horizon, evaluation grid, figures (:class:`~seagul_envs.tasks.profile.TaskProfile`;
     the defaults suit a new task)."""
+    periodic: tuple[int, ...] = field(default=(), metadata={"fingerprint_skip": lambda task: not task.periodic})
+    """State indices of angles whose problem is 2 pi-periodic (costs, goal and success rule alike): controllers
+    compare them with the goal by the wrapped difference (:meth:`state_error`) and learners may see ``(cos, sin)``
+    of them; nothing may assume such an angle stays bounded. Empty (the default) for a task whose cost tells the
+    turns apart, as the paper's acrobot does (its upright at ``th1 = pi`` is one point, not a class)."""
 
     # ------------------------------------------------------------------ sizes
     @property
@@ -152,6 +157,15 @@ class Task:
         variant = dataclasses.replace(self, dynamics=dynamics, params=params, extras=extras)
         object.__setattr__(variant, _ORIGIN, self.origin_fingerprint())  # frozen dataclass: a private attribute
         return variant
+
+    def state_error(self, x: Any) -> np.ndarray:
+        """``x - goal`` with the :attr:`periodic` coordinates wrapped to ``[-pi, pi)`` (for an array of states
+        too: the last axis is the state)."""
+        error = np.asarray(x, dtype=np.float64) - self.goal
+        if self.periodic:
+            index = list(self.periodic)
+            error[..., index] = (error[..., index] + np.pi) % (2.0 * np.pi) - np.pi
+        return error
 
     def origin_fingerprint(self) -> str:
         """The :meth:`fingerprint` of the task this one was made from by :meth:`with_params` (through any chain of
@@ -279,6 +293,8 @@ class Task:
         * ``params`` (a dataclass: its type and every field's name and value) and ``extras`` (its keys and values:
           arrays, numbers, strings, containers, dataclasses and CasADi functions by content; other callables, e.g. a
           renderer, by their module and qualified name; any other object by its pickle);
+        * ``periodic`` when a task declares periodic angles (an empty one leaves the fingerprint as it was);
+        * ``periodic`` when the task declares periodic angles (an empty one leaves the fingerprint as it was);
         * ``profile`` (a dataclass like ``params``: the solver plan, validation set, success rule, MPC defaults, ...),
           so a task whose solver plan or validation set differs never shares a cache either. The deprecated
           ``presets`` and ``train_recipe`` count only when a task gives them (training recipes and presets are not
@@ -301,6 +317,9 @@ class Task:
         if memo is None:
             digest = hashlib.sha256(_FINGERPRINT_VERSION)
             for f in dataclasses.fields(self):
+                skip = f.metadata.get("fingerprint_skip")
+                if skip is not None and skip(self):  # a field at its neutral default: fingerprints stay as before
+                    continue
                 _feed(digest, f.name, f.name)
                 _feed(digest, getattr(self, f.name), f.name)
             memo = digest.hexdigest()[:FINGERPRINT_LENGTH]
@@ -452,6 +471,11 @@ def validate_task(task: Any) -> Task:
         return value.astype(np.float64)
 
     array("goal", nx, finite=True)
+    periodic = task.periodic
+    if not (isinstance(periodic, tuple) and all(isinstance(i, int) and not isinstance(i, bool) for i in periodic)):
+        problems.append(f"periodic must be a tuple of state indices (int), got {periodic!r}")
+    elif len(set(periodic)) != len(periodic) or any(not 0 <= i < nx for i in periodic):
+        problems.append(f"periodic must hold distinct state indices in 0..{nx - 1}, got {periodic!r}")
     boxes = {}
     for lo, hi, n, finite in (
         ("u_low", "u_high", nu, True),
