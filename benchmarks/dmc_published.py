@@ -505,8 +505,8 @@ def main(argv: list[str] | None = None) -> int:
     else:
         data = json.loads(args.json.read_text())
     errors = validate(data)
-    for error in errors:
-        print(f"invalid: {error}", file=sys.stderr)
+    for problem in errors:
+        print(f"invalid: {problem}", file=sys.stderr)
     print(table(data))
     return 1 if errors else 0
 
