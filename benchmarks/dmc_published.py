@@ -208,7 +208,7 @@ _SIMBAV2 = (
     "DMC run."
 )
 _MRQ = (
-    "Fujimoto et al., 'Towards General-Purpose Model-Free Reinforcement Learning', arXiv:2501.16142, 2025: the "
+    "Fujimoto et al., 'Towards General-Purpose Model-Free Reinforcement Learning', ICLR 2025: the "
     "final evaluation of the 500,000-decision run, 1,000,000 environment steps at action repeat 2. The SimbaV2 "
     "repository's copy of these runs (results/baseline/mrq.csv) gives the same per-seed values at env_step 1,000,000."
 )
