@@ -125,6 +125,11 @@ CURRENT: dict[str, tuple[str, str]] = {
         "the classical swing-ups (energy shaping, Astrom-Furuta, Spong), zero and random actions, seagul's LQR",
         "python benchmarks/bench_dmc.py --json benchmarks/results/dmc.json",
     ),
+    "dmc_published.json": (
+        "published DeepMind Control Suite swing-up scores, each computed from its authors' released per-seed "
+        "results at a stated budget (source repository and commit per entry)",
+        "python benchmarks/dmc_published.py",
+    ),
     "networks/": ("value networks: the shipped ones and one representative seed of each compared sampler", ""),
     "models/": ("the shipped SB3 models (PPO and SAC per task)", ""),
 }
@@ -610,7 +615,7 @@ def section_dmc() -> str:
         pub = load("dmc_published.json")["scores"]
         prow = [[p["task"], p["method"], f"{p['score']:.0f}", f"{p['env_steps']:,}", p.get("observations", ""),
                  p.get("seeds") or "", p["source"]] for p in pub if p["task"] in DMC_TASKS]
-        out += ["", "Published scores on the same tasks (`dmc_published.json` beside the other results; each number's "
+        out += ["", "Published scores on the same tasks (`benchmarks/results/dmc_published.json`, computed from each method's released per-seed results; each number's "
                 "source and budget in environment steps):", "",
                 table(["task", "method", "score", "env steps", "observations", "seeds", "source"], prow)]
     return "\n".join(out)
