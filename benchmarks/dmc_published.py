@@ -84,7 +84,7 @@ Curves = dict[str, dict[int, float]]
 def read_tdmpc2_csv(data: bytes) -> Curves:
     """nicklashansen/tdmpc2 ``results/<method>/<task>.csv``: columns ``step,reward,seed``, the mean return of the
     evaluation episodes at each step. The steps are environment steps: action repeat 2 is applied to the trainer's
-    counter before the files are written (nicklashansen/tdmpc2 issue #45, the author's answer)."""
+    counter before the files are written (the author's answer in https://github.com/nicklashansen/tdmpc2/issues/45)."""
     curves: Curves = {}
     for row in csv.DictReader(io.StringIO(data.decode())):
         curves.setdefault(row["seed"], {})[int(float(row["step"]))] = float(row["reward"])
