@@ -61,7 +61,10 @@ class ValueEnsemble(nn.Module):
         n_params: int = 0,
         theta: Any = None,
         task_fingerprint: str = "",
+        periodic: Sequence[int] = (),
     ) -> None:
+        """``members`` networks of one architecture (arguments as for :class:`ValueNetwork`; ``periodic``: the
+        state indices every member feeds as ``(cos q, sin q)``)."""
         super().__init__()
         if int(members) < 2:
             raise ValueError(f"an ensemble needs >= 2 members, got {members}")
@@ -77,6 +80,7 @@ class ValueEnsemble(nn.Module):
                 n_params=n_params,
                 theta=theta,
                 task_fingerprint=task_fingerprint,
+                periodic=periodic,
             )
             for k in range(int(members))
         )
@@ -100,6 +104,11 @@ class ValueEnsemble(nn.Module):
     def n_params(self) -> int:
         """Number of physical parameters among the inputs."""
         return self.config.n_params
+
+    @property
+    def periodic(self) -> tuple[int, ...]:
+        """State indices the members feed as ``(cos q, sin q)``."""
+        return self.config.periodic
 
     @property
     def theta(self) -> np.ndarray:
@@ -151,6 +160,7 @@ class ValueEnsemble(nn.Module):
             task_name=self.task_name,
             n_params=self.n_params,
             task_fingerprint=self.task_fingerprint,
+            periodic=self.periodic,
         )
         for k, i in enumerate(idx):
             out.members[k].load_state_dict(self.members[i].state_dict())
@@ -189,18 +199,22 @@ class ValueEnsemble(nn.Module):
     def casadi_function(self, form: CasadiForm = "scalar") -> ca.Function:
         """CasADi ``(x, tau, theta) -> mean + pessimism * spread``; depends only on the architecture and ``K``.
         ``form`` as for :meth:`ValueNetwork.casadi_function` (``"matrix"``: MX, for compiled code)."""
-        return ensemble_network(self.nx, self.config.hidden, len(self.members), form, self.n_params, self.SPREAD_EPS)
+        return ensemble_network(
+            self.nx, self.config.hidden, len(self.members), form, self.n_params, self.SPREAD_EPS, self.periodic
+        )
 
     # -------------------------------------------------------------------- i/o
     def save(self, path: str | os.PathLike[str]) -> Path:
         """Write the ensemble to ``path`` atomically; :meth:`ValueNetwork.load` reads it back."""
-        config = {
+        config: dict[str, Any] = {
             "nx": self.config.nx,
             "hidden": list(self.config.hidden),
             "members": len(self.members),
             "pessimism": self.pessimism,
             "n_params": self.n_params,
         }
+        if self.periodic:  # only then: other files keep their layout
+            config["periodic"] = list(self.periodic)
         return write_value_file(path, ENSEMBLE_FORMAT_TAG, self.task_name, config, self, self.task_fingerprint)
 
     @classmethod
@@ -216,6 +230,7 @@ class ValueEnsemble(nn.Module):
                 task_name=str(payload["task_name"]),
                 n_params=int(c.get("n_params", 0)),
                 task_fingerprint=str(payload.get("task_fingerprint", "")),  # older files have none
+                periodic=tuple(c.get("periodic", ())),  # files of ensembles without periodic angles have none
             )
             ens.load_state_dict(payload["state_dict"])
         except Exception as exc:

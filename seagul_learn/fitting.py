@@ -194,7 +194,8 @@ def _members(network: ValueModel) -> list[ValueNetwork]:
 
 def make_network(config: TrainConfig, task: Task) -> ValueModel:
     """The run's (untrained) value function: a network, or an ensemble when ``config.network.ensemble >= 2``; over
-    robots (``model_params``) with the task's parameters as inputs, conditioned on the task's own values."""
+    robots (``model_params``) with the task's parameters as inputs, conditioned on the task's own values; the task's
+    periodic angles (:attr:`~seagul_envs.tasks.base.Task.periodic`) fed as ``(cos q, sin q)``."""
     robots = config.model_params and task.parameters is not None
     n_params = task.parameters.size if robots and task.parameters is not None else 0
     theta = task.theta if robots else None
@@ -209,8 +210,17 @@ def make_network(config: TrainConfig, task: Task) -> ValueModel:
             seed=config.seed,
             n_params=n_params,
             theta=theta,
+            periodic=task.periodic,
         )
-    return ValueNetwork(task.nx, net.hidden, task_name=task.name, seed=config.seed, n_params=n_params, theta=theta)
+    return ValueNetwork(
+        task.nx,
+        net.hidden,
+        task_name=task.name,
+        seed=config.seed,
+        n_params=n_params,
+        theta=theta,
+        periodic=task.periodic,
+    )
 
 
 def capped(value: np.ndarray, value_cap: float) -> np.ndarray:

@@ -6,6 +6,13 @@ statistics and, for a network over robots, its condition (the robot it plans for
 architecture, so it is built once per architecture and form and cached here; an MPC built on it accepts any newly
 trained network of the same shape by its parameters alone.
 
+A network built for a task with periodic angles (``periodic``: state indices of 2 pi-periodic coordinates,
+:attr:`seagul_envs.tasks.base.Task.periodic`) feeds ``(cos q, sin q)`` of each such coordinate to its first layer in
+place of the standardised ``q`` (:func:`periodic_features`), in every form alike, so its ``V`` is exactly 2 pi-periodic
+there and an unbounded (spinning) angle never leaves the training data's range. The input statistics keep one entry per
+raw input ``[x, tau, condition]`` (mean 0, std 1 at a periodic coordinate, unused), so ``theta`` differs from a plain
+network's only in the first layer's width: ``nx + len(periodic) + 1 + n_params`` inputs.
+
 Forms (:data:`CasadiForm`): ``"scalar"`` (SX), ``"matrix"`` (MX of dense products, for compiled code), and the
 second-order model of the network in ``x`` the MPC's ``taylor`` terminal cost uses: ``"taylor"`` (value, gradient
 and Hessian at ``x0`` by explicit forward and backward passes) and ``"taylor_model"`` (the quadratic they define).
@@ -21,15 +28,46 @@ from typing import Any, Literal, TypeAlias, cast
 
 import casadi as ca
 
-__all__ = ["CasadiForm", "casadi_network", "check_form", "ensemble_network", "num_parameters"]
+__all__ = [
+    "CasadiForm",
+    "casadi_network",
+    "check_form",
+    "check_periodic",
+    "ensemble_network",
+    "num_parameters",
+    "periodic_features",
+]
 
 CasadiForm: TypeAlias = Literal["scalar", "matrix", "taylor", "taylor_model"]
 """How a value function's CasADi graph is built: ``"scalar"`` (SX) or ``"matrix"`` (MX of dense products), or the
 second-order model in ``x``: ``"taylor"`` (its coefficients at ``x0``) and ``"taylor_model"`` (the quadratic)."""
 
 
-_ENSEMBLE_CACHE: dict[tuple[int, tuple[int, ...], int, str, int], ca.Function] = {}
-_CASADI_CACHE: dict[tuple[int, tuple[int, ...], str, int], ca.Function] = {}
+_ENSEMBLE_CACHE: dict[tuple[int, tuple[int, ...], int, str, int, tuple[int, ...]], ca.Function] = {}
+_CASADI_CACHE: dict[tuple[int, tuple[int, ...], str, int, tuple[int, ...]], ca.Function] = {}
+
+
+def check_periodic(nx: int, periodic: Any) -> tuple[int, ...]:
+    """``periodic`` as a sorted tuple of distinct state indices in ``0..nx-1`` (ValueError otherwise)."""
+    try:
+        out = tuple(sorted(int(i) for i in periodic))
+        valid = all(not isinstance(i, bool) and int(i) == i for i in periodic)
+    except (TypeError, ValueError):
+        valid, out = False, ()
+    if not valid or len(set(out)) != len(out) or any(not 0 <= i < nx for i in out):
+        raise ValueError(f"periodic must hold distinct state indices in 0..{nx - 1}, got {periodic!r}")
+    return out
+
+
+def periodic_features(x: Any, z: Any, periodic: tuple[int, ...], nx: int) -> Any:
+    """The first layer's input: the standardised raw inputs ``z`` (a column, ``nx + 1 + n_params`` rows) with each
+    periodic state coordinate ``i`` replaced by the two rows ``cos x_i, sin x_i`` (CasADi SX or MX)."""
+    if not periodic:
+        return z
+    rows = []
+    for i in range(nx):
+        rows += [ca.cos(x[i]), ca.sin(x[i])] if i in periodic else [z[i]]
+    return ca.vertcat(*rows, z[nx:])
 
 
 def check_form(form: Any) -> CasadiForm:
@@ -38,15 +76,18 @@ def check_form(form: Any) -> CasadiForm:
     return cast(CasadiForm, form)
 
 
-def casadi_network(nx: int, hidden: tuple[int, ...], form: CasadiForm = "scalar", n_params: int = 0) -> ca.Function:
+def casadi_network(
+    nx: int, hidden: tuple[int, ...], form: CasadiForm = "scalar", n_params: int = 0, periodic: tuple[int, ...] = ()
+) -> ca.Function:
     """Build (once per architecture and form) the symbolic network with ``theta`` laid out as in
-    ``casadi_parameters``."""
-    key = (nx, hidden, form, n_params)
+    ``casadi_parameters``; ``periodic``: the state indices fed as ``(cos, sin)`` (module docstring)."""
+    periodic = check_periodic(nx, periodic)
+    key = (nx, hidden, form, n_params, periodic)
     if key in _CASADI_CACHE:
         return _CASADI_CACHE[key]
     n_in = nx + 1 + n_params
-    widths = [n_in, *hidden, 1]
-    n_theta = num_parameters(nx, hidden, n_params)
+    widths = [n_in + len(periodic), *hidden, 1]
+    n_theta = num_parameters(nx, hidden, n_params, periodic)
     sym: Any = ca.SX if form == "scalar" else ca.MX
     x = sym.sym("x", nx)
     tau = sym.sym("tau", 1)
@@ -62,10 +103,10 @@ def casadi_network(nx: int, hidden: tuple[int, ...], form: CasadiForm = "scalar"
     in_mean, in_std = take(n_in), take(n_in)
     condition = theta[n_theta - n_params :]  # the robot (empty for a plain network), after the output statistics
     if form in ("taylor", "taylor_model"):
-        fn = _taylor_network(x, tau, theta, condition, in_mean, in_std, take, widths, form)
+        fn = _taylor_network(x, tau, theta, condition, in_mean, in_std, take, widths, form, periodic)
         _CASADI_CACHE[key] = fn
         return fn
-    h = (ca.vertcat(x, tau, condition) - in_mean) / in_std
+    h = periodic_features(x, (ca.vertcat(x, tau, condition) - in_mean) / in_std, periodic, nx)
     for i, (a, b) in enumerate(itertools.pairwise(widths)):
         # torch stores W as (out, in) row-major; CasADi reshapes column-major, hence the transpose.
         weight = ca.reshape(take(a * b), a, b).T
@@ -90,16 +131,29 @@ def _taylor_network(
     take: Any,
     widths: list[int],
     form: str,
+    periodic: tuple[int, ...] = (),
 ) -> ca.Function:
     """The ``"taylor"`` and ``"taylor_model"`` forms (:meth:`ValueNetwork.casadi_function`): the network's value,
     gradient and Hessian in ``x`` at ``x0`` from explicit forward (``A_l = da_l/dx``) and backward
-    (``delta_l = dV/dh_l``) passes of dense products, and the quadratic they define."""
+    (``delta_l = dV/dh_l``) passes of dense products, and the quadratic they define.
+
+    With periodic coordinates the first layer's input ``z`` is no longer affine in ``x``: its Jacobian has the rows
+    ``-sin x_i e_i'`` and ``cos x_i e_i'`` for coordinate ``i``, and the Hessian gains
+    ``sum_j (dV/dz_j) d2z_j/dx2``, i.e. ``-(dV/dz_cos cos x_i + dV/dz_sin sin x_i)`` at ``(i, i)``."""
     nx = x.numel()
     if form == "taylor_model":
         return _taylor_quadratic(nx)
-    n_in = widths[0]
-    h = (ca.vertcat(x, tau, condition) - in_mean) / in_std
-    jac = ca.vertcat(ca.diag(1.0 / in_std[:nx]), ca.MX.zeros(n_in - nx, nx))  # dz/dx
+    n_raw = widths[0] - len(periodic)
+    h = periodic_features(x, (ca.vertcat(x, tau, condition) - in_mean) / in_std, periodic, nx)
+    if periodic:
+        rows = []
+        for i in range(nx):
+            unit = ca.DM.zeros(1, nx)
+            unit[i] = 1.0
+            rows += [-ca.sin(x[i]) * unit, ca.cos(x[i]) * unit] if i in periodic else [unit / in_std[i]]
+        jac = ca.vertcat(*rows, ca.MX.zeros(n_raw - nx, nx))  # dz/dx
+    else:
+        jac = ca.vertcat(ca.diag(1.0 / in_std[:nx]), ca.MX.zeros(n_raw - nx, nx))  # dz/dx
     layers = []
     for i, (a, b) in enumerate(itertools.pairwise(widths)):
         weight = ca.reshape(take(a * b), a, b).T
@@ -121,6 +175,16 @@ def _taylor_network(
         curv = delta * (-2 * act * slope)  # dV/dh * tanh''(a)
         hess = hess + ca.mtimes(pre_jac.T, pre_jac * ca.repmat(curv, 1, nx))
         delta = ca.mtimes(weight.T, delta * slope)
+    if periodic:  # delta is now dV/dz; the features' own curvature
+        curv_x, row = [], 0
+        for i in range(nx):
+            if i in periodic:
+                curv_x.append(-(delta[row] * ca.cos(x[i]) + delta[row + 1] * ca.sin(x[i])))
+                row += 2
+            else:
+                curv_x.append(ca.MX(0))
+                row += 1
+        hess = hess + ca.diag(ca.vertcat(*curv_x))
     coeffs = ca.vertcat(value, grad.T, ca.vec(hess))
     return ca.Function("value_network_taylor", [x, tau, theta], [coeffs], ["x0", "tau", "theta"], ["c"])
 
@@ -152,27 +216,36 @@ def _taylor_ensemble(one: ca.Function, nx: int, k: int, n: int, eps: float, form
     return ca.Function("value_ensemble_taylor_model", [xs, x0s, c], [value], ["x", "x0", "c"], ["V"])
 
 
-def num_parameters(nx: int, hidden: tuple[int, ...], n_params: int) -> int:
+def num_parameters(nx: int, hidden: tuple[int, ...], n_params: int, periodic: tuple[int, ...] = ()) -> int:
     """Length of a network's CasADi parameter vector ``theta`` (the layout of
-    :meth:`~seagul_learn.value_network.ValueNetwork.casadi_parameters`)."""
+    :meth:`~seagul_learn.value_network.ValueNetwork.casadi_parameters`); each periodic coordinate adds one input
+    to the first layer."""
     n_in = nx + 1 + n_params
-    widths = [n_in, *hidden, 1]
+    widths = [n_in + len(periodic), *hidden, 1]
     return 2 * n_in + sum(a * b + b for a, b in itertools.pairwise(widths)) + 2 + n_params
 
 
 def ensemble_network(
-    nx: int, hidden: tuple[int, ...], members: int, form: CasadiForm = "scalar", n_params: int = 0, eps: float = 1e-3
+    nx: int,
+    hidden: tuple[int, ...],
+    members: int,
+    form: CasadiForm = "scalar",
+    n_params: int = 0,
+    eps: float = 1e-3,
+    periodic: tuple[int, ...] = (),
 ) -> ca.Function:
     """The graph of an ensemble of ``members`` networks of one architecture (built once per architecture, size and
     form): ``(x, tau, theta) -> m + beta * s``, with ``theta`` every member's parameters in order then ``beta`` (the
     pessimism), ``m`` the members' mean and ``s = sqrt(mean_k (V_k - m)^2 + eps^2) - eps`` their smoothed spread
     (``eps`` in value units keeps ``sqrt`` differentiable where all members agree). The ``"taylor"`` forms are every
-    member's coefficients then ``beta``, and the mean plus ``beta`` times the spread of the members' quadratics."""
+    member's coefficients then ``beta``, and the mean plus ``beta`` times the spread of the members' quadratics.
+    ``periodic``: the members' periodic state indices (:func:`casadi_network`)."""
     form = check_form(form)
-    key = (nx, hidden, members, form, n_params)
+    periodic = check_periodic(nx, periodic)
+    key = (nx, hidden, members, form, n_params, periodic)
     if key not in _ENSEMBLE_CACHE:
-        one = casadi_network(nx, hidden, form, n_params)
-        n = num_parameters(nx, hidden, n_params)
+        one = casadi_network(nx, hidden, form, n_params, periodic)
+        n = num_parameters(nx, hidden, n_params, periodic)
         k = members
         if form in ("taylor", "taylor_model"):
             _ENSEMBLE_CACHE[key] = _taylor_ensemble(one, nx, k, n, eps, form)

@@ -4,7 +4,9 @@
 
 One ``torch.save`` file holding a plain dict ``{"format": "seagul-value-network", "version": 1, "task_name",
 "task_fingerprint", "config": {"nx", "hidden", "n_params"}, "state_dict"}`` (an ensemble: ``"format":
-"seagul-value-ensemble"`` and also ``"members"`` and ``"pessimism"`` in its config). Tensors and builtins only, so it
+"seagul-value-ensemble"`` and also ``"members"`` and ``"pessimism"`` in its config). A network with periodic angles
+(fed as ``(cos q, sin q)``) also has ``"periodic"``, the list of their state indices, in its config; files without
+the key (all files written before it existed) are networks without periodic angles. Tensors and builtins only, so it
 loads with ``weights_only=True`` (no code runs on load). ``task_fingerprint`` is the trained task's
 :meth:`~seagul_envs.tasks.base.Task.fingerprint` (``""`` when unknown; files written before it existed lack the key
 and load with ``""``): an MPC refuses a network whose fingerprint is not its task's, so a network trained on one

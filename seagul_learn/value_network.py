@@ -11,6 +11,13 @@ docs/reference/spec.md §14), takes ``[x, tau, theta]``. Where ``theta`` is not 
 last entry block of the CasADi parameters, so an MPC built once re-plans for another robot (an estimate) with
 ``set_value_function`` alone.
 
+A network for a task with periodic angles (``periodic``, :attr:`seagul_envs.tasks.base.Task.periodic`; the trainer
+passes the task's) feeds ``(cos q, sin q)`` of each periodic coordinate ``q`` to its first layer instead of the
+standardised ``q``: ``Vhat`` is then exactly 2 pi-periodic in ``q``, as the problem's value is, and an angle that has
+spun several turns is as well inside the training data as its wrapped self. The features are bounded, so they are not
+standardised (the statistics' entries of a periodic coordinate stay mean 0, std 1, so gradient losses and distances
+measured in standardised units see the angle in radians). The CasADi forms compute the same features.
+
 For NLPs the same network is available as a CasADi expression (:meth:`casadi_function`) whose parameters
 ``theta`` are the flattened normalisation and weights in a layout fixed by the architecture, so an MPC built once
 accepts any newly trained network of the same shape (it implements
@@ -37,7 +44,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from seagul_learn.value_casadi import CasadiForm, casadi_network, check_form, num_parameters
+from seagul_learn.value_casadi import CasadiForm, casadi_network, check_form, check_periodic, num_parameters
 from seagul_learn.value_files import (
     ENSEMBLE_FORMAT_TAG,
     FORMAT_TAG,
@@ -78,6 +85,13 @@ class ValueNetworkConfig:
     """Widths of the tanh hidden layers (paper: one layer of 32)."""
     n_params: int = 0
     """Physical parameters ``theta`` among the inputs (``[x, tau, theta]``); 0: ``Vhat(x, tau)``."""
+    periodic: tuple[int, ...] = ()
+    """State indices of 2 pi-periodic angles, fed as ``(cos q, sin q)`` (sorted; () for none)."""
+
+    @property
+    def n_features(self) -> int:
+        """Width of the first layer's input: ``nx + len(periodic) + 1 + n_params``."""
+        return self.nx + len(self.periodic) + 1 + self.n_params
 
 
 _Forward: TypeAlias = Callable[..., torch.Tensor]
@@ -146,8 +160,11 @@ class ValueNetwork(nn.Module):
         n_params: int = 0,
         theta: Any = None,
         task_fingerprint: str = "",
+        periodic: Sequence[int] = (),
     ) -> None:
         """Build the network; ``seed`` makes the initial weights reproducible without touching global RNG state.
+        ``periodic``: state indices of 2 pi-periodic angles (the task's :attr:`~seagul_envs.tasks.base.Task.periodic`),
+        fed as ``(cos q, sin q)``.
         ``n_params > 0`` adds the physical parameters to the inputs; ``theta`` is the initial condition (default
         zeros; the trainer sets the task's values). ``task_fingerprint``: the
         :meth:`~seagul_envs.tasks.base.Task.fingerprint` of the task the network is trained for ("" if unknown): an
@@ -160,12 +177,14 @@ class ValueNetwork(nn.Module):
         hidden = tuple(int(h) for h in hidden)
         if not hidden or any(h < 1 for h in hidden):
             raise ValueError(f"hidden widths must be a non-empty sequence of positive integers, got {hidden}")
-        self.config = ValueNetworkConfig(nx=int(nx), hidden=hidden, n_params=int(n_params))
+        self.config = ValueNetworkConfig(
+            nx=int(nx), hidden=hidden, n_params=int(n_params), periodic=check_periodic(int(nx), periodic)
+        )
         self.task_name = str(task_name)
         self.task_fingerprint = str(task_fingerprint)
         """Fingerprint of the task the network is trained for ("" if unknown; stored in its file)."""
         n_in = self.config.nx + 1 + self.config.n_params
-        widths = [n_in, *hidden, 1]
+        widths = [self.config.n_features, *hidden, 1]
         with torch.random.fork_rng(devices=[]):
             if seed is not None:
                 torch.manual_seed(int(seed))
@@ -192,6 +211,11 @@ class ValueNetwork(nn.Module):
     def n_params(self) -> int:
         """Number of physical parameters among the inputs (0: ``Vhat(x, tau)``)."""
         return self.config.n_params
+
+    @property
+    def periodic(self) -> tuple[int, ...]:
+        """State indices fed as ``(cos q, sin q)`` (() for none)."""
+        return self.config.periodic
 
     @torch.no_grad()
     def condition(self, theta: Any) -> None:
@@ -236,7 +260,13 @@ class ValueNetwork(nn.Module):
         self, x: torch.Tensor, tau: torch.Tensor, theta: torch.Tensor | None = None
     ) -> torch.Tensor:
         """The standardised output ``y = (Vhat - out_mean) / out_std``, shape ``(batch,)`` (the training target)."""
-        h = (self._inputs(x, tau, theta) - self.in_mean) / self.in_std
+        raw = self._inputs(x, tau, theta)
+        h = (raw - self.in_mean) / self.in_std
+        if self.periodic:
+            cols: list[torch.Tensor] = []
+            for i in range(self.nx):
+                cols += [torch.cos(raw[:, i]), torch.sin(raw[:, i])] if i in self.periodic else [h[:, i]]
+            h = torch.cat([torch.stack(cols, dim=1), h[:, self.nx :]], dim=1)
         layers = self.linear_layers
         for layer in layers[:-1]:
             h = torch.tanh(layer(h))
@@ -296,8 +326,12 @@ class ValueNetwork(nn.Module):
             raise ValueError("normalisation data contains NaN or inf")
         in_std = inputs.std(axis=0)
         out_std = value.std()
-        self.in_mean.copy_(torch.tensor(inputs.mean(axis=0)))
-        self.in_std.copy_(torch.tensor(np.where(in_std > _MIN_STD, in_std, 1.0)))
+        in_mean = inputs.mean(axis=0)
+        in_std = np.where(in_std > _MIN_STD, in_std, 1.0)
+        periodic = list(self.periodic)
+        in_mean[periodic], in_std[periodic] = 0.0, 1.0  # fed as (cos, sin): unused, and radians in gradient losses
+        self.in_mean.copy_(torch.tensor(in_mean))
+        self.in_std.copy_(torch.tensor(in_std))
         self.out_mean.fill_(float(value.mean()))
         self.out_std.fill_(float(out_std) if out_std > _MIN_STD else 1.0)
 
@@ -311,14 +345,22 @@ class ValueNetwork(nn.Module):
         ``(mu', sigma')`` of the value, the last layer becomes ``W' = W sigma / sigma'``,
         ``b' = (b sigma + mu - mu') / sigma'``. Training then sees targets in the new units, so labels far outside
         the range of the data the statistics first came from (closed-loop tails) no longer sit tens of standard
-        deviations out, and the network keeps everything it has learned.
+        deviations out, and the network keeps everything it has learned. The ``(cos, sin)`` inputs of periodic
+        coordinates are not standardised, so their columns stay as they are.
         """
         old_in_mean, old_in_std = self.in_mean.clone(), self.in_std.clone()
         old_out_mean, old_out_std = self.out_mean.clone(), self.out_std.clone()
         self.set_normalization(x, tau, value, theta)
         first, last = self.linear_layers[0], self.linear_layers[-1]
-        first.bias.add_(first.weight @ ((self.in_mean - old_in_mean) / old_in_std))
-        first.weight.mul_((self.in_std / old_in_std)[None, :])
+        shift, ratio = (self.in_mean - old_in_mean) / old_in_std, self.in_std / old_in_std
+        if self.periodic:  # one column per raw input, two per periodic coordinate (whose statistics are unused)
+            cols = [j for i in range(self.nx) for j in ((i, i) if i in self.periodic else (i,))]
+            index = torch.tensor(cols + list(range(self.nx, self.nx + 1 + self.n_params)))
+            standardised = torch.tensor([i not in self.periodic for i in index.tolist()])
+            shift = torch.where(standardised, shift[index], torch.zeros((), dtype=DTYPE))
+            ratio = torch.where(standardised, ratio[index], torch.ones((), dtype=DTYPE))
+        first.bias.add_(first.weight @ shift)
+        first.weight.mul_(ratio[None, :])
         last.weight.mul_(old_out_std / self.out_std)
         last.bias.copy_((last.bias * old_out_std + old_out_mean - self.out_mean) / self.out_std)
 
@@ -337,7 +379,7 @@ class ValueNetwork(nn.Module):
     @property
     def num_casadi_parameters(self) -> int:
         """Length of ``theta``."""
-        return num_parameters(self.nx, self.config.hidden, self.n_params)
+        return num_parameters(self.nx, self.config.hidden, self.n_params, self.periodic)
 
     def casadi_function(self, form: CasadiForm = "scalar") -> ca.Function:
         """CasADi ``(x[nx], tau[1], theta[n]) -> V[1]``; depends only on the architecture, not on the weights.
@@ -355,7 +397,7 @@ class ValueNetwork(nn.Module):
         ``d2V/dx2 = sum_l A_l' diag(delta_l * tanh''(a_l)) A_l``), and ``form="taylor_model"`` is
         ``(x, x0, c) -> V0 + g (x - x0) + 1/2 (x - x0)' H (x - x0)``: together equal to ``V`` to second order in
         ``x`` at ``x = x0``."""
-        return casadi_network(self.nx, self.config.hidden, check_form(form), self.n_params)
+        return casadi_network(self.nx, self.config.hidden, check_form(form), self.n_params, self.periodic)
 
     def to_casadi(self) -> ca.Function:
         """CasADi ``(x[nx], tau[1]) -> V[1]`` with the current weights embedded as constants."""
@@ -366,8 +408,11 @@ class ValueNetwork(nn.Module):
 
     # -------------------------------------------------------------------- i/o
     def save(self, path: str | os.PathLike[str]) -> Path:
-        """Write the network to ``path`` atomically (temp file + rename); returns the path."""
-        config = {"nx": self.config.nx, "hidden": list(self.config.hidden), "n_params": self.n_params}
+        """Write the network to ``path`` atomically (temp file + rename); returns the path. The config records
+        ``periodic`` only for a network that has periodic coordinates (other files keep their layout)."""
+        config: dict[str, Any] = {"nx": self.config.nx, "hidden": list(self.config.hidden), "n_params": self.n_params}
+        if self.periodic:
+            config["periodic"] = list(self.periodic)
         return write_value_file(path, FORMAT_TAG, self.task_name, config, self, self.task_fingerprint)
 
     @classmethod
@@ -393,6 +438,7 @@ class ValueNetwork(nn.Module):
                 task_name=str(payload["task_name"]),
                 n_params=int(config.get("n_params", 0)),  # files of networks without robot parameters have none
                 task_fingerprint=str(payload.get("task_fingerprint", "")),  # older files have none
+                periodic=tuple(config.get("periodic", ())),  # files of networks without periodic angles have none
             )
             net.load_state_dict(payload["state_dict"])
         except Exception as exc:
