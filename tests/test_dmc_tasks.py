@@ -298,3 +298,20 @@ def test_a_cartpole_plan_is_flown_by_dm_controls_physics() -> None:
     print(f"cart-pole plan: dm_control's step from each knot lands on the next within {worst:.1e}")
     assert worst < 1e-6
     assert dmc_cartpole_reward(task.params, plan.states[-1], np.zeros(1)) >= task.params.success_reward
+
+
+def test_the_models_need_no_dm_control() -> None:
+    """Building the three tasks imports neither dm_control nor shimmy: a plain install has the tasks, the ``dmc``
+    extra is only for scoring and for these checks."""
+    import subprocess
+    import sys
+
+    code = (
+        "import sys\n"
+        "from seagul_envs import make_task\n"
+        "for name in ('dmc_pendulum', 'dmc_cartpole', 'dmc_acrobot'):\n"
+        "    make_task(name)\n"
+        "print(sorted(m for m in ('dm_control', 'shimmy') if m in sys.modules))\n"
+    )
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True, timeout=120)
+    assert out.stdout.strip().splitlines()[-1] == "[]"
