@@ -196,6 +196,7 @@ def test_tasks_are_valid_and_periodic(name: str) -> None:
     assert task.goal_is_equilibrium(cost=True) and task.terminal_cost_value(task.goal) == 0.0
     assert np.isinf(task.x_low[task.nx // 2 :]).all() and np.isinf(task.x_high[task.nx // 2 :]).all()
     angles = [i for i, s in enumerate(task.state_names[: task.nx // 2]) if s != "slider"]
+    assert task.periodic == tuple(angles)  # the library wraps them in x - x* (LQR, learned values' features)
     assert all(np.isinf(task.x_low[i]) and np.isinf(task.x_high[i]) for i in angles)
     rng = np.random.default_rng(14)
     for x in _random_states(task, rng, 20):
@@ -209,6 +210,7 @@ def test_tasks_are_valid_and_periodic(name: str) -> None:
     upright_again = task.goal.copy()
     upright_again[angles] = 2 * np.pi
     assert task.profile.is_success(task, upright_again)
+    np.testing.assert_allclose(task.state_error(upright_again), 0.0, atol=1e-12)
 
 
 def test_cartpole_cost_is_one_minus_the_suite_reward() -> None:

@@ -59,7 +59,8 @@ class TaskSpec:
     stage_cost: Callable[[ca.SX, ca.SX], ca.SX]
     """``l(x, u)``: the smooth surrogate of the suite's reward (cost per second)."""
     angles: tuple[int, ...]
-    """State indices of the hinge angles (periodic: unbounded, wrapped in the terminal cost)."""
+    """State indices of the hinge angles: :attr:`Task.periodic` (unbounded, wrapped in the terminal cost and in the
+    library's ``x - x*``)."""
     x_low: np.ndarray
     """Path-state lower bounds."""
     x_high: np.ndarray
@@ -151,4 +152,5 @@ def build_dmc_task(spec: TaskSpec) -> Task:
             **model.functions(name),
         },
         profile=profile,
+        periodic=spec.angles,
     )
