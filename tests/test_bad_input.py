@@ -32,6 +32,9 @@ from seagul_learn.training import TrainConfig
 from seagul_learn.trajopt import GUESS_NAMES, TrajectoryOptimizer
 from seagul_learn.value_network import ValueNetwork, ValueNetworkFileError
 
+ALL_TASKS = r"\['acrobot', 'dmc_acrobot', 'dmc_cartpole', 'dmc_pendulum', 'glider'\]"
+"""The message's list of every registered task (the built-ins, the suite's tasks included)."""
+
 # Modest example counts: the whole file must stay well under 30 s on a loaded 2-core machine.
 FEW = settings(max_examples=25, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 NON_FINITE = st.sampled_from([math.nan, math.inf, -math.inf])
@@ -64,7 +67,7 @@ def _start(env: Any) -> np.ndarray:
 # ------------------------------------------------------------------------------------------ names of things
 def test_unknown_task_name_lists_the_available_ones() -> None:
     for bad in ("acrobt", "", "Acrobot", 3):
-        with pytest.raises(ValueError, match=r"unknown task .*; available tasks: \['acrobot', 'glider'\]"):
+        with pytest.raises(ValueError, match=r"unknown task .*; available tasks: " + ALL_TASKS):
             make_task(bad)  # type: ignore[arg-type]
 
 
@@ -321,7 +324,7 @@ def test_mpc_horizon_must_be_at_least_one() -> None:
         ("loss.sobolev_weight", math.inf, r"loss\.sobolev_weight must be >= 0, got inf"),
         ("sampler.max_steps", 0, r"sampler: max_steps must be >= 1, got 0"),
         ("network.hidden", (0,), r"network\.hidden must be positive layer widths, got \(0,\)"),
-        ("task", "pendulum", r"unknown task 'pendulum'; available tasks: \['acrobot', 'glider'\]"),
+        ("task", "pendulum", r"unknown task 'pendulum'; available tasks: " + ALL_TASKS),
     ],
 )
 def test_train_config_names_the_field_and_its_range(field: str, value: Any, message: str) -> None:
@@ -416,7 +419,11 @@ def _one_line(text: str) -> str:
 @pytest.mark.parametrize(
     ("extra", "message"),
     [
-        (["--task", "nope"], "argument --task: unknown task 'nope'; available tasks: acrobot, glider"),
+        (
+            ["--task", "nope"],
+            "argument --task: unknown task 'nope'; available tasks: "
+            "acrobot, dmc_acrobot, dmc_cartpole, dmc_pendulum, glider",
+        ),
         (["--budget", "0"], "budget must be >= 1, got 0"),
         (["--budget", "1.5"], "Error parsing --budget: invalid literal for int() with base 10: '1.5'"),
         (["--runtime.workers", "0"], "runtime.workers must be >= 1, got 0"),

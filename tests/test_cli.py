@@ -24,7 +24,8 @@ from seagul_learn.value_network import ValueNetwork
     [
         (
             ["train", "--task", "pendulum", "--out", "x"],
-            "argument --task: unknown task 'pendulum'; available tasks: acrobot, glider",
+            "argument --task: unknown task 'pendulum'; available tasks: "
+            "acrobot, dmc_acrobot, dmc_cartpole, dmc_pendulum, glider",
         ),
         (["train", "--task", "acrobot", "--budget", "0", "--out", "x"], "budget must be >= 1, got 0"),
         (["train", "--task", "acrobot", "--budget", "ten", "--out", "x"], "--budget"),

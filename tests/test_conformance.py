@@ -579,13 +579,29 @@ def test_the_lqr_reference_follows_the_predict_protocol(task: Task) -> None:
     _assert_predict_protocol(LQRPolicy(task), task)
 
 
+NEAR_GOAL = frozenset(name for name in available_tasks() if make_task(name).extras.get("suite"))
+"""Tasks whose solves from X0 are global swing-up searches (the DeepMind Control Suite's: minutes each, and the
+weak motors' local optima): the battery checks determinism across workers and backends, not the search, so their
+batch starts within 0.01 of the goal. Building their optimizer takes 5-20 s per process (5 RK4 substeps of MuJoCo's
+own timestep in every interval), so their solve_many case is ``slow``: the contract is the library's, and the
+default suite checks it on every other task (``test_solve_many_on_ray_equals_the_local_backend`` too)."""
+
+
 def _batch(task: Task) -> tuple[np.ndarray, np.ndarray]:
     """Two starts in X0 with times to go at both ends of T0 (a free final time's range): one chunk per worker."""
-    starts = task.sample_x0(np.random.default_rng(11), 2)
+    rng = np.random.default_rng(11)
+    if task.name in NEAR_GOAL:
+        starts = task.goal + rng.uniform(-0.01, 0.01, (2, task.nx))
+    else:
+        starts = task.sample_x0(rng, 2)
     return starts, np.array(task.tau_range, dtype=float)
 
 
-def test_solve_many_is_bit_identical_for_one_and_two_workers(task: Task) -> None:
+@pytest.mark.parametrize(
+    "label", [pytest.param(label, marks=pytest.mark.slow) if label in NEAR_GOAL else label for label in TASKS]
+)
+def test_solve_many_is_bit_identical_for_one_and_two_workers(label: str) -> None:
+    task = TASKS[label]()
     starts, taus = _batch(task)
     serial = solve_many(task, starts, taus, workers=1, progress=False, solver_options=SOLVER)
     parallel = solve_many(task, starts, taus, workers=2, progress=False, solver_options=SOLVER)
@@ -617,6 +633,8 @@ def test_solve_many_on_ray_equals_the_local_backend() -> None:
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])
     try:
         for label, factory in TASKS.items():
+            if label in NEAR_GOAL:  # see NEAR_GOAL: the backends' contract does not depend on the task
+                continue
             task = factory()
             starts, taus = _batch(task)
             local = solve_many(task, starts, taus, workers=1, progress=False, solver_options=SOLVER)
