@@ -615,8 +615,9 @@ def section_dmc() -> str:
         pub = load("dmc_published.json")["scores"]
         prow = [[p["task"], p["method"], f"{p['score']:.0f}", f"{p['env_steps']:,}", p.get("observations", ""),
                  p.get("seeds") or "", p["source"]] for p in pub if p["task"] in DMC_TASKS]
-        out += ["", "Published scores on the same tasks (`benchmarks/results/dmc_published.json`, computed from each method's released per-seed results; each number's "
-                "source and budget in environment steps):", "",
+        out += ["", "Published scores on the same tasks (`benchmarks/results/dmc_published.json`, computed from "
+                "each method's released per-seed results; each number's source and budget in environment steps):",
+                "",
                 table(["task", "method", "score", "env steps", "observations", "seeds", "source"], prow)]
     return "\n".join(out)
 
