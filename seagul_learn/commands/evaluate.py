@@ -11,24 +11,54 @@ writes ``summary.json``/``summary.csv``/``results.json``, ``heatmap.png`` and (g
 file's parent directory). ``--task`` is a registered name or ``module:factory`` (your own Task, e.g.
 ``--task examples.custom_system:make_cartpole``); the grid, the default horizon and the success rule are the task's
 (``task.profile``).
+
+In the DeepMind Control Suite::
+
+    seagul evaluate --dmc pendulum-swingup --network benchmarks/results/networks/dmc_pendulum_....pt \
+        --episodes 10 --seed 0
+
+runs the learned MPC (:mod:`seagul_learn.dmc_eval`) in dm_control's own env on reset seeds ``S .. S+N-1``, scored by
+dm_control's reward, and prints a JSON object last: ``{"task", "score_mean", "score_std", "episodes", "median_ms",
+"p95_ms", ...}`` (``--task`` and ``--out`` are not used; ``--horizon``, ``--time-to-go`` and ``--hold`` override
+the env's deployment, :data:`seagul_learn.dmc_eval.DEFAULT_DEPLOYMENTS`).
 """
 
 from __future__ import annotations
 
 import argparse
+import json
 from pathlib import Path
 from typing import Any
 
 from seagul_control.starts import start_grid
 from seagul_envs import resolve_task
 from seagul_learn.cli import Command
-from seagul_learn.commands._args import add_task_argument, positive_int
+from seagul_learn.commands._args import add_task_argument, non_negative_float, non_negative_int, positive_int
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Declare the ``evaluate`` arguments."""
-    add_task_argument(parser)
-    parser.add_argument("--out", required=True, help="output directory (created if missing)")
+    add_task_argument(parser, required=False)
+    parser.add_argument("--out", default=None, help="output directory (created if missing; required without --dmc)")
+    dmc = parser.add_argument_group("DeepMind Control Suite (--dmc)")
+    dmc.add_argument(
+        "--dmc",
+        default=None,
+        metavar="DOMAIN-TASK",
+        help="score the --network's MPC in dm_control's own env (pendulum-swingup, cartpole-swingup, "
+        "cartpole-swingup_sparse, acrobot-swingup) and print a JSON object last; needs seagul[dmc]",
+    )
+    dmc.add_argument("--episodes", type=positive_int, default=10, help="--dmc: episodes (default 10)")
+    dmc.add_argument("--seed", type=non_negative_int, default=0, help="--dmc: first reset seed (default 0)")
+    dmc.add_argument(
+        "--time-to-go",
+        type=non_negative_float,
+        default=None,
+        help="--dmc: the value's constant time to go tau_V (s) after the lookahead (default: the env's deployment)",
+    )
+    dmc.add_argument(
+        "--hold", type=positive_int, default=None, help="--dmc: control steps per MPC decision (default: the env's)"
+    )
     parser.add_argument("--network", action="append", default=[], help="value network file for an MPC (repeatable)")
     parser.add_argument("--label", action="append", default=[], help="label of each --network MPC, in order")
     parser.add_argument("--task-terminal", action="store_true", help="also the MPC with the task's own l_f")
@@ -118,8 +148,40 @@ def specs_from_args(args: argparse.Namespace) -> list[Any]:
     return specs
 
 
+def run_dmc(args: argparse.Namespace) -> int:
+    """``--dmc``: score one network's MPC in the suite's env; the last line printed is the JSON result."""
+    import dataclasses
+
+    from seagul_control.dmc import dmc_env_id
+    from seagul_learn.dmc_eval import DEFAULT_DEPLOYMENTS, DMCDeployment, evaluate_network_dmc
+
+    env_id = dmc_env_id(args.dmc)
+    if len(args.network) != 1:
+        raise ValueError(f"--dmc scores one learned MPC: give exactly one --network (got {len(args.network)})")
+    if args.task is not None or args.out is not None:
+        raise ValueError("--dmc takes its task from the env (no --task) and prints its result (no --out)")
+    path = Path(args.network[0])
+    if not path.is_file():
+        raise FileNotFoundError(f"--network {path}: no such file")
+    setting = DEFAULT_DEPLOYMENTS.get(env_id, DMCDeployment())
+    changes = {
+        key: value
+        for key, value in (("horizon", args.horizon), ("time_to_go", args.time_to_go), ("hold", args.hold))
+        if value is not None
+    }
+    setting = dataclasses.replace(setting, **changes)
+    seeds = list(range(args.seed, args.seed + args.episodes))
+    result = evaluate_network_dmc(env_id, path, seeds, setting, progress=not args.no_progress, jit=not args.no_jit)
+    print(json.dumps({**result, "network": str(path)}))
+    return 0
+
+
 def run(args: argparse.Namespace) -> int:
     """Evaluate, write the tables and figures, print one line per policy; the last line is the output directory."""
+    if args.dmc is not None:
+        return run_dmc(args)
+    if args.task is None or args.out is None:
+        raise ValueError("--task and --out are required (or --dmc DOMAIN-TASK with one --network)")
     from seagul_control.evaluation import evaluate
     from seagul_learn.report import summarize, write_outputs
 

@@ -1,0 +1,162 @@
+"""A learned value's short-horizon MPC in the DeepMind Control Suite, scored by dm_control's own reward.
+
+This is what ``seagul evaluate --dmc DOMAIN-TASK --network PATH`` runs and what the suite benchmark
+(``benchmarks/bench_dmc_learned.py``, ``benchmarks/bench_dmc.py``) reports: the network ``V(x, tau)`` of the suite's
+CasADi task (:data:`seagul_control.dmc.DMC_TASKS`: ``dmc_pendulum``, ``dmc_cartpole``, ``dmc_acrobot``) as the
+terminal cost of :class:`~seagul_control.mpc.LimitedLookaheadMPC` (paper Eq. 3),
+
+    u_0..u_{N-1} = argmin  sum_{k<N} l(x_k, u_k) dt + Vhat(x_N, tau_V),
+
+deployed in dm_control's own episodes (:func:`seagul_control.dmc.run_dmc_episode`: the suite's reset distribution,
+its 1,000 steps, the sum of its rewards).
+
+How it is deployed (:class:`DMCDeployment`):
+
+* **time to go** [choice]: the suite's episode pays every step the same and has no end for the controller to plan
+  for, while the network is the value of a finite problem (``tau <= tau_max``). The MPC is given a constant time to
+  go ``tau_V + N dt``, so its terminal cost is always ``Vhat(x_N, tau_V)``: "the optimal cost of the next
+  ``tau_V`` seconds after the lookahead", a stationary receding-horizon policy that never enters the MPC's end
+  phase. ``time_to_go=None`` instead passes the episode's remaining time, capped at ``tau_max``
+  (:class:`~seagul_control.dmc.PredictController`'s default).
+* **decision period**: the MPC's ``dt`` is ``hold`` times the suite's control period, and each action is held for
+  ``hold`` control steps (zero-order hold); ``hold=1`` decides at every step.
+* the observation the MPC receives is the exact float64 physics state ``[qpos, qvel]`` and the time to go.
+
+:data:`DEFAULT_DEPLOYMENTS` holds the setting per env chosen on the tuning reset seeds (never the evaluation seeds
+0-9; ``benchmarks/bench_dmc_learned.py tune``).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+__all__ = ["DEFAULT_DEPLOYMENTS", "DMCDeployment", "evaluate_network_dmc", "learned_dmc_controller"]
+
+
+@dataclass(frozen=True)
+class DMCDeployment:
+    """How a learned MPC is deployed in one suite env (module docstring)."""
+
+    horizon: int = 10
+    """MPC lookahead N (intervals of ``hold`` control steps)."""
+    time_to_go: float | None = 5.0
+    """``tau_V`` (s): the value's time to go at the end of the lookahead, constant (``None``: the episode's
+    remaining time capped at the task's ``tau_max``, given to the MPC as is)."""
+    hold: int = 1
+    """Control steps per MPC decision (the MPC's ``dt`` is ``hold`` times the suite's control period)."""
+
+    def __post_init__(self) -> None:
+        if not isinstance(self.horizon, int) or isinstance(self.horizon, bool) or self.horizon < 1:
+            raise ValueError(f"DMCDeployment.horizon must be an integer >= 1, got {self.horizon!r}")
+        if not isinstance(self.hold, int) or isinstance(self.hold, bool) or self.hold < 1:
+            raise ValueError(f"DMCDeployment.hold must be an integer >= 1, got {self.hold!r}")
+        if self.time_to_go is not None and not (math.isfinite(self.time_to_go) and self.time_to_go >= 0):
+            raise ValueError(f"DMCDeployment.time_to_go must be a finite number >= 0 or None, got {self.time_to_go}")
+
+
+#: The deployment per suite env (Gymnasium id), chosen on the tuning reset seeds; envs not listed use
+#: ``DMCDeployment()``.
+DEFAULT_DEPLOYMENTS: dict[str, DMCDeployment] = {
+    "dm_control/pendulum-swingup-v0": DMCDeployment(horizon=10, time_to_go=5.0, hold=1),
+}
+
+
+def _deployment(env_id: str, deployment: DMCDeployment | None) -> DMCDeployment:
+    return deployment if deployment is not None else DEFAULT_DEPLOYMENTS.get(env_id, DMCDeployment())
+
+
+def learned_dmc_controller(
+    env_id: str, network: Any, deployment: DMCDeployment | None = None, *, jit: bool = True
+) -> Any:
+    """The learned MPC of ``network`` (a :class:`~seagul_learn.value_network.ValueNetwork` or a file path) as a suite
+    controller (:class:`~seagul_control.dmc.PredictController`) for ``env_id`` (a suite id or its short form).
+    ``jit=False`` solves interpreted (no C compilation: slower steps, no build time).
+
+    Raises ``ValueError`` when the network was trained on another task than the env's CasADi task.
+    """
+    from seagul_control.dmc import DMC_TASKS, PredictController, dmc_env_id
+    from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
+    from seagul_envs import make_task
+    from seagul_learn.value_network import ValueNetwork
+
+    full = dmc_env_id(env_id)
+    setting = _deployment(full, deployment)
+    task = make_task(DMC_TASKS[full])
+    if isinstance(network, (str, Path)):
+        network = ValueNetwork.load(network)
+    trained_on = getattr(network, "task_name", None)
+    if trained_on not in (None, "", task.name):
+        raise ValueError(f"{full} is modelled by task {task.name!r}, but the network was trained on {trained_on!r}")
+    dt = setting.hold * task.control_period
+    mpc = LimitedLookaheadMPC(task, network, horizon=setting.horizon, options=MPCOptions(dt=dt, jit=jit))
+    tau = None if setting.time_to_go is None else setting.time_to_go + setting.horizon * dt
+    return PredictController(mpc, time_to_go=tau, observation_dtype=np.float64)
+
+
+def evaluate_network_dmc(
+    env_id: str,
+    network: Any,
+    seeds: list[int],
+    deployment: DMCDeployment | None = None,
+    *,
+    progress: bool = False,
+    jit: bool = True,
+) -> dict[str, Any]:
+    """Score the learned MPC of ``network`` on the reset ``seeds`` of ``env_id`` (one episode each).
+
+    Returns ``{"task", "score_mean", "score_std", "episodes", "median_ms", "p95_ms", "scores", "seeds",
+    "horizon", "time_to_go", "hold", "wall_s"}``: ``task`` the short env name (``"pendulum-swingup"``), the score
+    dm_control's return, ``score_std`` the population standard deviation over the episodes, ``median_ms`` and
+    ``p95_ms`` the medians over the episodes of each episode's decision-time median and 95th percentile.
+    ``progress`` shows a bar over the episodes; ``jit`` as in :func:`learned_dmc_controller`.
+    """
+    from seagul_control.dmc import dmc_env_id, make_dmc_env, run_dmc_episode
+
+    full = dmc_env_id(env_id)
+    if not seeds:
+        raise ValueError("evaluate_network_dmc: no reset seeds given")
+    setting = _deployment(full, deployment)
+    controller = learned_dmc_controller(full, network, setting, jit=jit)
+    env = make_dmc_env(full)
+    scores: list[float] = []
+    medians: list[float] = []
+    p95s: list[float] = []
+    start = time.perf_counter()
+    bar: Any = None
+    if progress:
+        from tqdm import tqdm
+
+        bar = tqdm(total=len(seeds), desc=full.removeprefix("dm_control/"), unit="episode")
+    try:
+        for seed in seeds:
+            episode = run_dmc_episode(full, controller, int(seed), hold=setting.hold, env=env)
+            scores.append(float(episode.score))
+            medians.append(episode.decision_ms_median)
+            p95s.append(episode.decision_ms_p95)
+            if bar is not None:
+                bar.set_postfix(score=f"{episode.score:.0f}")
+                bar.update(1)
+    finally:
+        env.close()
+        if bar is not None:
+            bar.close()
+    return {
+        "task": full.removeprefix("dm_control/").removesuffix("-v0"),
+        "score_mean": round(float(np.mean(scores)), 3),
+        "score_std": round(float(np.std(scores)), 3),
+        "episodes": len(scores),
+        "median_ms": round(float(np.median(medians)), 4),
+        "p95_ms": round(float(np.median(p95s)), 4),
+        "scores": [round(s, 3) for s in scores],
+        "seeds": [int(s) for s in seeds],
+        "horizon": setting.horizon,
+        "time_to_go": setting.time_to_go,
+        "hold": setting.hold,
+        "wall_s": round(time.perf_counter() - start, 1),
+    }
