@@ -293,7 +293,6 @@ class Task:
         * ``params`` (a dataclass: its type and every field's name and value) and ``extras`` (its keys and values:
           arrays, numbers, strings, containers, dataclasses and CasADi functions by content; other callables, e.g. a
           renderer, by their module and qualified name; any other object by its pickle);
-        * ``periodic`` when a task declares periodic angles (an empty one leaves the fingerprint as it was);
         * ``periodic`` when the task declares periodic angles (an empty one leaves the fingerprint as it was);
         * ``profile`` (a dataclass like ``params``: the solver plan, validation set, success rule, MPC defaults, ...),
           so a task whose solver plan or validation set differs never shares a cache either. The deprecated
