@@ -1,4 +1,5 @@
-"""What every benchmark reports about the machine it ran on (timings are only comparable within one run)."""
+"""What every benchmark reports about the machine it ran on (timings are only comparable within one run), and the
+seed lists their command lines take."""
 
 from __future__ import annotations
 
@@ -58,3 +59,25 @@ def machine(*extra_libraries: str) -> dict[str, Any]:
     for name in extra_libraries:
         info[name] = importlib.import_module(name).__version__
     return info
+
+
+def parse_seeds(text: str) -> list[int]:
+    """``"0-9"``, ``"0,3,5"`` or a mix (``"0-4,10"``) -> the list of seeds, in order; anything else raises
+    ``ValueError`` naming the part it could not read."""
+    seeds: list[int] = []
+    for part in (p.strip() for p in text.split(",")):
+        if not part:
+            continue
+        try:
+            if "-" in part:
+                lo, hi = part.split("-")
+                if int(hi) < int(lo):
+                    raise ValueError
+                seeds.extend(range(int(lo), int(hi) + 1))
+            else:
+                seeds.append(int(part))
+        except ValueError:
+            raise ValueError(f"seeds: cannot read {part!r} (expected N, A-B with A <= B, or a comma list)") from None
+    if not seeds:
+        raise ValueError(f"seeds: no seed in {text!r}")
+    return seeds
