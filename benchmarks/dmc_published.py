@@ -1,8 +1,9 @@
 """Published DeepMind Control Suite scores on the swing-ups, each with its source, budget and seeds.
 
 ``benchmarks/results/dmc_published.json`` holds the numbers printed beside seagul's own (``dmc.json``) on the
-results page. Each entry is computed from the per-seed evaluation curves that the authors released in their
-repositories, read at a pinned commit (``SOURCES``), so every number can be recomputed:
+results page. Each entry of ``SPECS`` is computed from the per-seed evaluation curves that the authors released in
+their repositories, read at a pinned commit (``SOURCES``), so every such number can be recomputed (the entries read
+off a published table, ``TABLE_ENTRIES``, are described below):
 
     python benchmarks/dmc_published.py                  # validate the JSON and print its table
     python benchmarks/dmc_published.py --rebuild \\
@@ -23,8 +24,12 @@ curves are stored in control steps except MR.Q's, whose ``Timestep`` column coun
 A single evaluation is noisy (the SAC acrobot curve moves between 14 and 78 from one 100,000-step checkpoint to
 the next), so scores that differ by less than the spread of ``per_seed`` should not be ranked.
 
-An entry whose number is only printed in a paper takes ``"from": "paper table"``, ``per_seed: null`` and a source
-naming the table; none is needed today because every number below has released per-seed data.
+Entries whose number exists only in a published table (no per-seed data released) are stored as the table prints
+them (``TABLE_ENTRIES``): ``per_seed`` null, a source naming the table and a url pinned to the commit read.
+``"from": "paper table"`` marks a table printed in a paper, ``"from": "published table"`` one printed in a
+repository's documentation (CleanRL's PPO and RPO results on dm_control, the table of its RPO page
+``rl-algorithms/rpo.md``); both follow the same rules. ``--rebuild`` keeps these entries as they are, each after
+the rebuilt entries of its task.
 """
 
 from __future__ import annotations
@@ -50,7 +55,9 @@ JSON_PATH = RESULTS / "dmc_published.json"
 #: The suite's swing-up tasks as dm_control names them (``domain-task``), the tasks of ``dmc.json``.
 TASKS = ("pendulum-swingup", "cartpole-swingup", "cartpole-swingup_sparse", "acrobot-swingup")
 OBSERVATIONS = ("state", "pixels")
-FROM = ("released per-seed results", "paper table")
+FROM = ("released per-seed results", "paper table", "published table")
+#: The kinds of ``from`` whose number is read off a printed table: ``per_seed`` null, a source naming the table.
+TABLE_FROM = ("paper table", "published table")
 ENTRY_KEYS = (
     "task",
     "method",
@@ -291,6 +298,90 @@ SPECS: tuple[Spec, ...] = (
 )
 
 
+@dataclass(frozen=True)
+class TableEntry:
+    """One published score that exists only as a printed table cell (no per-seed data released), stored as printed.
+
+    ``cell`` is the cell verbatim (``"590.21 ± 16.72"``): the score is the number before the ``±``, the whole cell goes
+    into the note. ``source`` names the document and the table (and column), ``url`` the cell's line at the commit
+    read; ``kind`` is the entry's ``from``."""
+
+    task: str
+    method: str
+    cell: str
+    seeds: int
+    env_steps: int
+    observations: str
+    source: str
+    url: str
+    note: str
+    kind: str = "published table"
+
+    @property
+    def score(self) -> float:
+        return float(self.cell.split("±")[0])
+
+
+#: vwxyzjn/cleanrl read at its newest snapshot on 2026-12-06; the dm_control table of its RPO page
+#: (``rl-algorithms/rpo.md`` in the documentation folder) is unchanged since it was added with RPO (commit
+#: a90742a627a678282df4318d647308d60a4bb798, 2023-01-04).
+CLEANRL = ("vwxyzjn/cleanrl", "fe8d8a03c41a7ef5b523e2e354bd01c363e786bb")
+_CLEANRL_RPO_PAGE = f"https://github.com/{CLEANRL[0]}/blob/{CLEANRL[1]}/docs/rl-algorithms/rpo.md"
+
+_CLEANRL_HOW = (
+    "The cell is the mean over seeds of each seed's average episodic return over its last 100 training episodes "
+    "(the stochastic policy while it learns, on dm_control's own reward: the episode statistics are recorded before "
+    "the reward normalization), and the ± is the standard deviation of those per-seed averages (numpy's std, ddof "
+    "0), as openrlbenchmark's rlops computes its result table: https://github.com/openrlbenchmark/openrlbenchmark/"
+    "blob/d67da557945475e465866071765048d8ffe1aa4a/README.md (Result table) and CleanRL's contribution guide. No "
+    "per-seed numbers are released beside the table. {env} through Shimmy, one environment, no "
+    "action repeat, so the 8,000,000 steps are control steps (8,000 episodes of 1,000); state observations "
+    "flattened, normalized by running statistics and clipped to ±10."
+)
+_CLEANRL_PPO = (
+    _CLEANRL_HOW + " CleanRL's ppo_continuous_action.py at tag v1.0.0-13-gcbd83f6, run by benchmark/ppo.sh with "
+    "--exp-name ppo_continuous_action_8M --total-timesteps 8000000, 10 seeds. CleanRL's PPO page "
+    "(rl-algorithms/ppo.md) prints another run of the script under the same tag, column "
+    "'ppo_continuous_action' ({other}); its budget and seeds are not printed beside it (the script's default is "
+    "1,000,000 steps), so it is not listed."
+)
+_CLEANRL_RPO = (
+    _CLEANRL_HOW + " CleanRL's rpo_continuous_action.py at tag pr-331 ('Robust Policy Optimization in Deep "
+    "Reinforcement Learning', arXiv:2212.07536): PPO whose action mean is perturbed by uniform noise in "
+    "[-0.5, 0.5] (rpo_alpha 0.5) for the policy update; run by benchmark/rpo.sh, the script's default 8,000,000 "
+    "steps, 10 seeds."
+)
+
+
+def _cleanrl(task: str, method: str, cell: str, line: int, other: str = "") -> TableEntry:
+    """An entry of the dm_control table of CleanRL's RPO page; ``other`` is the PPO page's cell for the same task."""
+    column = "ppo_continuous_action_8M" if method == "PPO" else "rpo_continuous_action"
+    note = (_CLEANRL_PPO if method == "PPO" else _CLEANRL_RPO).format(env=f"dm_control/{task}-v0", other=other)
+    return TableEntry(
+        task,
+        method,
+        cell,
+        10,
+        8_000_000,
+        "state",
+        f"{CLEANRL[0]}@{CLEANRL[1][:7]} RPO page rl-algorithms/rpo.md, dm_control results table, column {column}",
+        f"{_CLEANRL_RPO_PAGE}#L{line}",
+        note,
+    )
+
+
+TABLE_ENTRIES: tuple[TableEntry, ...] = (
+    _cleanrl("acrobot-swingup", "PPO", "26.87 ± 7.93", 148, "27.84 ± 9.25"),
+    _cleanrl("acrobot-swingup", "RPO", "42.97 ± 2.71", 148),
+    _cleanrl("cartpole-swingup", "PPO", "590.21 ± 16.72", 153, "640.86 ± 11.44"),
+    _cleanrl("cartpole-swingup", "RPO", "613.46 ± 10.91", 153),
+    _cleanrl("cartpole-swingup_sparse", "PPO", "240.14 ± 299.93", 154, "51.34 ± 58.35"),
+    _cleanrl("cartpole-swingup_sparse", "RPO", "525.49 ± 185.96", 154),
+    _cleanrl("pendulum-swingup", "PPO", "472.19 ± 385.47", 180, "242.81 ± 245.95"),
+    _cleanrl("pendulum-swingup", "RPO", "774.30 ± 21.03", 180),
+)
+
+
 def score_at(curves: Curves, budget: int) -> tuple[list[float], list[int]]:
     """Per seed (in the order of ``sorted(curves, key=_seed_order)``), the score logged at the largest step at or
     below ``budget`` and that step. Raises ``ValueError`` when a seed has nothing logged at or below the budget."""
@@ -343,6 +434,30 @@ def entry(spec: Spec, data: bytes) -> dict[str, Any]:
     }
 
 
+def table_entry(t: TableEntry) -> dict[str, Any]:
+    """The JSON entry of ``t``, the number as its table prints it."""
+    return {
+        "task": t.task,
+        "method": t.method,
+        "score": t.score,
+        "seeds": t.seeds,
+        "per_seed": None,
+        "env_steps": t.env_steps,
+        "observations": t.observations,
+        "from": t.kind,
+        "source": t.source,
+        "url": t.url,
+        "note": f"Mean over {t.seeds} seeds as the table prints it ({t.cell}). {t.note}".strip(),
+    }
+
+
+def in_task_order(rebuilt: list[dict[str, Any]], fixed: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """The entries grouped by task, tasks in order of first appearance: each task's rebuilt entries (in the order of
+    ``SPECS``), then its table entries (in the order of ``TABLE_ENTRIES``)."""
+    tasks = list(dict.fromkeys(e["task"] for e in [*rebuilt, *fixed]))
+    return [e for task in tasks for group in (rebuilt, fixed) for e in group if e["task"] == task]
+
+
 def git_show(clone: Path, commit: str, path: str) -> bytes:
     """The bytes of ``path`` at ``commit`` in the git repository ``clone`` (a work tree or a bare directory).
 
@@ -354,16 +469,23 @@ def git_show(clone: Path, commit: str, path: str) -> bytes:
     return done.stdout
 
 
-def build(clones: Mapping[str, Path], retrieved: str) -> dict[str, Any]:
-    """Every entry of ``SPECS`` recomputed from the clones (``owner/name -> path``) at the pinned commits."""
+def build(
+    clones: Mapping[str, Path],
+    retrieved: str,
+    specs: Iterable[Spec] = SPECS,
+    table_entries: Iterable[TableEntry] = TABLE_ENTRIES,
+) -> dict[str, Any]:
+    """Every entry of ``specs`` recomputed from the clones (``owner/name -> path``) at the pinned commits, and every
+    entry of ``table_entries`` as stored, in the order of ``in_task_order``."""
     cache: dict[tuple[str, str], bytes] = {}
-    scores = []
-    for spec in SPECS:
+    rebuilt = []
+    for spec in specs:
         key = (spec.repo, spec.path)
         if key not in cache:
             cache[key] = git_show(clones[spec.repo], SOURCES[spec.repo], spec.path)
-        scores.append(entry(spec, cache[key]))
-    return {"scores": scores, "retrieved": retrieved}
+        rebuilt.append(entry(spec, cache[key]))
+    fixed = [table_entry(t) for t in table_entries]
+    return {"scores": in_task_order(rebuilt, fixed), "retrieved": retrieved}
 
 
 # --- validation and the table ---------------------------------------------------------------------------------
@@ -375,8 +497,8 @@ def validate(data: Mapping[str, Any]) -> list[str]:
     Checks: the top-level keys; ``retrieved`` an ISO date; per entry every key of ``ENTRY_KEYS`` with its type, a
     known task, observation kind and ``from``; a non-empty ``source`` and an ``https://`` ``url``; a positive
     integer budget; for released per-seed results ``len(per_seed) == seeds`` and ``score`` their mean to the
-    rounding (0.06); for paper tables ``per_seed`` null and a source naming the table; no (task, method, budget,
-    observations, source) twice (two runs of one method by different authors are two entries).
+    rounding (0.06); for tables (``TABLE_FROM``) ``per_seed`` null and a source naming the table; no (task, method,
+    budget, observations, source) twice (two runs of one method by different authors are two entries).
     """
     errors: list[str] = []
     if set(data) != {"scores", "retrieved"}:
@@ -424,11 +546,11 @@ def validate(data: Mapping[str, Any]) -> list[str]:
                 errors.append(f"{where}: seeds {e['seeds']} but {len(per_seed)} per-seed values")
             elif not math.isclose(sum(per_seed) / len(per_seed), score, abs_tol=0.06):
                 errors.append(f"{where}: score {score} is not the mean of per_seed ({sum(per_seed) / len(per_seed)})")
-        elif e["from"] == "paper table":
+        elif e["from"] in TABLE_FROM:
             if per_seed is not None:
-                errors.append(f"{where}: a paper-table entry has per_seed")
+                errors.append(f"{where}: a {e['from']} entry has per_seed")
             if "table" not in str(e["source"]).lower():
-                errors.append(f"{where}: a paper-table source must name the table")
+                errors.append(f"{where}: a {e['from']} source must name the table")
         key = (e["task"], e["method"], e["env_steps"], e["observations"], e["source"])
         if key in seen:
             errors.append(f"{where}: the same task, method, budget, observations and source twice")
@@ -437,8 +559,8 @@ def validate(data: Mapping[str, Any]) -> list[str]:
 
 
 def table(data: Mapping[str, Any]) -> str:
-    """The entries as a Markdown table: task, method, score (± the standard deviation over seeds), budget,
-    observations, seeds, source."""
+    """The entries as a Markdown table: task, method, score (± the standard deviation over seeds when ``per_seed``
+    is released; a table entry's score as its table prints it), budget, observations, seeds, source."""
     lines = ["| task | method | score | env steps | observations | seeds | source |", "|---|---|---|---|---|---|---|"]
     for e in data["scores"]:
         spread = ""
@@ -446,8 +568,9 @@ def table(data: Mapping[str, Any]) -> str:
             mean = sum(e["per_seed"]) / len(e["per_seed"])
             std = math.sqrt(sum((v - mean) ** 2 for v in e["per_seed"]) / (len(e["per_seed"]) - 1))
             spread = f" ± {std:.0f}"
+        shown = f"{e['score']:g}" if e["per_seed"] is None else f"{e['score']:.1f}"
         lines.append(
-            f"| {e['task']} | {e['method']} | {e['score']:.1f}{spread} | {e['env_steps']:,} | "
+            f"| {e['task']} | {e['method']} | {shown}{spread} | {e['env_steps']:,} | "
             f"{e['observations']} | {e['seeds'] or ''} | {e['source']} |"
         )
     return "\n".join(lines)

@@ -1,6 +1,7 @@
 """The published DeepMind Control Suite scores (``benchmarks/results/dmc_published.json``): the file's format, a
-source for every number, and the readers and the budget rule of ``benchmarks/dmc_published.py`` that rebuild it
-(on small inputs in each source's released format; the real rebuild needs clones of five repositories)."""
+source for every number, the readers and the budget rule of ``benchmarks/dmc_published.py`` that rebuild it (on small
+inputs in each source's released format; the real rebuild needs clones of five repositories), and the entries read
+off published tables, which the rebuild keeps as stored."""
 
 from __future__ import annotations
 
@@ -8,6 +9,7 @@ import copy
 import gzip
 import importlib.util
 import json
+import re
 import sys
 from pathlib import Path
 from types import ModuleType
@@ -50,6 +52,9 @@ def test_every_entry_names_its_source_and_how_it_was_computed(published: dict[st
             repo = e["source"].split("@")[0]
             commit = dp.SOURCES[repo]
             assert e["source"].startswith(f"{repo}@{commit[:7]} ") and f"/blob/{commit}/" in e["url"], e
+        else:
+            assert e["from"] in dp.TABLE_FROM and e["per_seed"] is None, e
+            assert "table" in e["source"] and re.search(r"/blob/[0-9a-f]{40}/.*#L\d+$", e["url"]), e
 
 
 def test_the_file_is_what_the_specs_describe(published: dict[str, Any]) -> None:
@@ -58,8 +63,23 @@ def test_the_file_is_what_the_specs_describe(published: dict[str, Any]) -> None:
     for s in dp.SPECS:
         url = f"https://github.com/{s.repo}/blob/{dp.SOURCES[s.repo]}/{s.path}"
         specs.add((s.task, s.method, s.env_steps, s.observations, url))
+    for t in dp.TABLE_ENTRIES:
+        specs.add((t.task, t.method, t.env_steps, t.observations, t.url))
     assert stored == specs
-    assert len(published["scores"]) == len(dp.SPECS)
+    assert len(published["scores"]) == len(dp.SPECS) + len(dp.TABLE_ENTRIES)
+
+
+def test_the_table_entries_are_stored_as_their_tables_print_them(published: dict[str, Any]) -> None:
+    stored = [e for e in published["scores"] if e["from"] in dp.TABLE_FROM]
+    assert stored == [dp.table_entry(t) for t in dp.TABLE_ENTRIES]
+    assert dp.validate({"scores": stored, "retrieved": published["retrieved"]}) == []
+    cleanrl = {(e["task"], e["method"]): e for e in stored if e["source"].startswith("vwxyzjn/cleanrl@")}
+    assert {t for t, _ in cleanrl} == set(dp.TASKS) and {m for _, m in cleanrl} == {"PPO", "RPO"}
+    for e in cleanrl.values():
+        assert e["seeds"] == 10 and e["env_steps"] == 8_000_000 and e["observations"] == "state", e
+        assert f"({e['score']:.2f} ± " in e["note"] and "standard deviation" in e["note"], e
+    assert cleanrl["cartpole-swingup", "PPO"]["score"] == 590.21
+    assert cleanrl["pendulum-swingup", "RPO"]["score"] == 774.30
 
 
 def test_every_task_has_scores_and_the_acrobot_has_them_at_one_million_steps(published: dict[str, Any]) -> None:
@@ -98,6 +118,9 @@ def _entry() -> dict[str, Any]:
         ({"score": 1200.0, "per_seed": [1200.0], "seeds": 1}, "0..1000"),
         ({"from": "paper table", "source": "Lee et al. 2025"}, "per_seed"),
         ({"from": "paper table", "per_seed": None, "source": "Lee et al. 2025, p. 3"}, "name the table"),
+        ({"from": "published table", "source": "o/n@abc page x.md, results table"}, "has per_seed"),
+        ({"from": "published table", "per_seed": None, "source": "o/n@abc page x.md"}, "name the table"),
+        ({"from": "blog post", "per_seed": None, "source": "o/n@abc page x.md, results table"}, "from not one of"),
     ],
 )
 def test_the_validator_rejects_a_broken_entry(change: dict[str, Any], complaint: str) -> None:
@@ -108,7 +131,8 @@ def test_the_validator_rejects_a_broken_entry(change: dict[str, Any], complaint:
 
 def test_the_validator_accepts_a_paper_table_entry_and_rejects_duplicates_and_missing_keys() -> None:
     paper = _entry() | {"from": "paper table", "per_seed": None, "source": "Lee et al. 2025, Table 9"}
-    assert dp.validate({"scores": [_entry(), paper], "retrieved": "2026-12-06"}) == []
+    docs = _entry() | {"from": "published table", "per_seed": None, "source": "o/n@abc page x.md, results table"}
+    assert dp.validate({"scores": [_entry(), paper, docs], "retrieved": "2026-12-06"}) == []
     assert any("twice" in e for e in dp.validate({"scores": [_entry(), _entry()], "retrieved": "2026-12-06"}))
     broken = _entry()
     del broken["note"]
@@ -131,6 +155,55 @@ def test_an_entry_records_its_mean_seeds_and_steps() -> None:
     assert e["score"] == 25.0 and e["per_seed"] == [30.0, 20.0] and e["seeds"] == 2
     assert "200,000 (1 seed), 100,000 (1 seed)" in e["note"]
     assert dp.validate({"scores": [e], "retrieved": "2026-12-06"}) == []
+
+
+def _table_entry(task: str, method: str, cell: str) -> Any:
+    source, url = "o/n@abc page x.md, results table", "https://github.com/o/n/blob/abc/x.md#L7"
+    return dp.TableEntry(task, method, cell, 10, 8_000_000, "state", source, url, "")
+
+
+def test_the_rebuild_keeps_the_table_entries_after_the_rebuilt_entries_of_their_task(
+    monkeypatch: pytest.MonkeyPatch,
+) -> None:
+    files = {
+        "results/a.csv": b"step,reward,seed\n1000,10.0,1\n1000,20.0,2\n",
+        "results/b.csv": b"step,reward,seed\n1000,700.0,1\n",
+    }
+    shown: list[tuple[Path, str, str]] = []
+
+    def git_show(clone: Path, commit: str, path: str) -> bytes:
+        shown.append((clone, commit, path))
+        return files[path]
+
+    monkeypatch.setattr(dp, "git_show", git_show)
+    repo = "nicklashansen/tdmpc2"
+    specs = (
+        dp.Spec("acrobot-swingup", "X", 1000, "state", repo, "results/a.csv", dp.read_tdmpc2_csv),
+        dp.Spec("pendulum-swingup", "X", 1000, "state", repo, "results/b.csv", dp.read_tdmpc2_csv),
+    )
+    tables = (
+        _table_entry("pendulum-swingup", "T", "12.50 ± 3.00"),
+        _table_entry("acrobot-swingup", "T", "1.25 ± 0.50"),
+        _table_entry("cartpole-swingup", "T", "600.00 ± 1.00"),
+    )
+    data = dp.build({repo: Path("clone")}, "2026-12-06", specs, tables)
+    order = [(e["task"], e["method"], e["from"]) for e in data["scores"]]
+    assert order == [
+        ("acrobot-swingup", "X", "released per-seed results"),
+        ("acrobot-swingup", "T", "published table"),
+        ("pendulum-swingup", "X", "released per-seed results"),
+        ("pendulum-swingup", "T", "published table"),
+        ("cartpole-swingup", "T", "published table"),
+    ]
+    assert [c for _, c, _ in shown] == [dp.SOURCES[repo]] * 2
+    kept = [e for e in data["scores"] if e["from"] == "published table"]
+    assert sorted(kept, key=lambda e: e["score"]) == sorted(map(dp.table_entry, tables), key=lambda e: e["score"])
+    acrobot = data["scores"][1]
+    assert acrobot["score"] == 1.25 and acrobot["per_seed"] is None and acrobot["seeds"] == 10
+    assert acrobot["url"] == "https://github.com/o/n/blob/abc/x.md#L7" and acrobot["source"].endswith("table")
+    assert acrobot["note"] == "Mean over 10 seeds as the table prints it (1.25 ± 0.50)."
+    assert data["scores"][0]["score"] == 15.0
+    assert dp.validate(data) == []
 
 
 def test_the_readers_parse_each_released_format() -> None:
