@@ -26,6 +26,11 @@ episode time in seconds) or an object with SB3's ``predict`` (wrapped by :class:
 the observation ``[x, time to go]`` the seagul envs emit). A controller with a ``reset()`` method has it called at
 the start of every episode (warm starts, internal state).
 
+A controller trained on dm_control's own observation (an RL agent) declares it with the attribute
+``observation = "dm_control"``: it is then called with ``gymnasium.spaces.flatten`` of the observation dict (what
+``gymnasium.wrappers.FlattenObservation`` gives, float64; :func:`dm_control_observation`) instead of the physics
+state. Without the attribute (or with ``observation = "physics"``) it gets the physics state as above.
+
 Actions are checked, not silently changed: dm_control clips nothing itself (MuJoCo clamps the simulated force to
 ``ctrlrange``, but the cartpole's reward reads the unclamped ``ctrl``), so an action beyond a bound by more than
 :data:`ACTION_TOLERANCE` raises ``ValueError`` naming the bound; an excess up to that tolerance (a solver's round-off
@@ -51,11 +56,14 @@ __all__ = [
     "DMC_ENV_IDS",
     "DMC_TASKS",
     "EPISODE_STEPS",
+    "OBSERVATION_MODES",
     "DMCEpisode",
     "PredictController",
     "as_controller",
+    "dm_control_observation",
     "dmc_env_id",
     "make_dmc_env",
+    "observation_mode",
     "physics_of",
     "physics_state",
     "run_dmc_episode",
@@ -86,6 +94,26 @@ EPISODE_STEPS = 1000
 #: How far (in ``ctrl`` units) an action may pass a bound of the action space and still be accepted, clipped onto
 #: the bound: the round-off of an optimiser's saturated input. Anything further raises ``ValueError``.
 ACTION_TOLERANCE = 1e-6
+
+
+#: What a controller may be called with (its ``observation`` attribute; ``"physics"`` without one): the physics
+#: state ``[qpos, qvel]`` or dm_control's flattened observation.
+OBSERVATION_MODES: tuple[str, ...] = ("physics", "dm_control")
+
+
+def observation_mode(controller: Any) -> str:
+    """The controller's ``observation`` attribute (one of :data:`OBSERVATION_MODES`; ``"physics"`` when it has
+    none); any other value raises ``ValueError``."""
+    mode = getattr(controller, "observation", "physics")
+    if mode not in OBSERVATION_MODES:
+        raise ValueError(f"controller.observation must be one of {list(OBSERVATION_MODES)}, got {mode!r}")
+    return str(mode)
+
+
+def dm_control_observation(env: gym.Env, observation: Any) -> np.ndarray:
+    """dm_control's observation as an RL agent sees it: ``gymnasium.spaces.flatten`` of the observation dict in
+    ``env``'s observation space (the output of ``gymnasium.wrappers.FlattenObservation``), as float64."""
+    return np.asarray(gym.spaces.flatten(env.observation_space, observation), dtype=float)
 
 
 def dmc_env_id(name: str) -> str:
@@ -304,7 +332,8 @@ def run_dmc_episode(
 
     ``controller``: a callable ``(x, t) -> action`` on the physics state (:func:`physics_state`) and the episode
     time (s), or an object with SB3's ``predict`` (wrapped by :class:`PredictController`). Its ``reset()``, if any,
-    is called first.
+    is called first. A controller with ``observation = "dm_control"`` gets dm_control's flattened observation
+    (:func:`dm_control_observation`) as ``x`` instead of the physics state (:func:`observation_mode`).
 
     ``hold``: the controller decides at every ``hold``-th control step and its action is applied for ``hold``
     consecutive control steps (zero-order hold), so a controller may act at a coarser period ``hold * control_dt``
@@ -323,6 +352,7 @@ def run_dmc_episode(
         raise ValueError(f"hold must be a positive integer number of control steps, got {hold!r}")
     if not isinstance(seed, (int, np.integer)) or isinstance(seed, bool) or seed < 0:
         raise ValueError(f"seed must be a non-negative integer, got {seed!r}")
+    mode = observation_mode(controller)
     own_env = env is None
     the_env = make_dmc_env(full) if env is None else env
     try:
@@ -341,12 +371,13 @@ def run_dmc_episode(
         low = np.asarray(space.low, dtype=float)
         high = np.asarray(space.high, dtype=float)
         wall0 = time.perf_counter()
-        the_env.reset(seed=int(seed))
+        obs, _ = the_env.reset(seed=int(seed))
         reset = getattr(policy, "reset", None)
         if callable(reset):
             reset()
         x = physics_state(the_env)
         start = tuple(x.tolist())
+        seen = dm_control_observation(the_env, obs) if mode == "dm_control" else x
         rewards: list[float] = []
         states: list[tuple[float, ...]] = [start] if record else []
         actions: list[tuple[float, ...]] = []
@@ -357,14 +388,15 @@ def run_dmc_episode(
             t = step * control_dt
             if step % hold == 0:
                 tic = time.perf_counter()
-                raw = policy(x.copy(), t)
+                raw = policy(seen.copy(), t)
                 decision_s.append(time.perf_counter() - tic)
                 action = _check_action(raw, low, high, step, t)
-            _, reward, terminated, truncated, _ = the_env.step(action.copy())
+            obs, reward, terminated, truncated, _ = the_env.step(action.copy())
             rewards.append(float(reward))
             step += 1
             done = bool(terminated or truncated)
             x = physics_state(the_env)
+            seen = dm_control_observation(the_env, obs) if mode == "dm_control" else x
             if record:
                 actions.append(tuple(action.tolist()))
                 states.append(tuple(x.tolist()))
