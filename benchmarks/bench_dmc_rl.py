@@ -5,7 +5,7 @@ Usage::
 
     .venv/bin/python benchmarks/bench_dmc_rl.py [--tasks pendulum-swingup,cartpole-swingup,...] [--algos PPO,SAC]
         [--seeds 5] [--steps 1000000 | --steps PPO=1000000,SAC=1000000] [--out runs/dmc_rl]
-        [--json benchmarks/results/dmc_rl.json]
+        [--json FILE]
     .venv/bin/python benchmarks/bench_dmc_rl.py --throughput 120 [--tasks pendulum-swingup] [--algos PPO,SAC]
 
 Every run is :func:`seagul_learn.dmc_rl.train_dmc_sb3` with the settings of ``seagul_learn/hyperparams/dmc.yml``
@@ -15,7 +15,8 @@ checkpoint. The model of each seed selected on the validation episodes (reset se
 :func:`seagul_learn.dmc_rl.evaluate_sb3_dmc` on reset seeds 0-9. ``--steps`` defaults to each entry's
 ``n_timesteps`` (1,000,000 for both).
 
-The last line of stdout is the JSON written to ``--json`` (omit ``--json`` to write nothing)::
+The last line of stdout is the JSON written to ``--json`` (omit ``--json`` to write nothing; the benchmark's file
+is ``dmc_rl.json`` in the results directory)::
 
     {"tasks": {env_id: {"ppo": {"score_mean", "score_std", "seeds", "env_steps", "per_seed": [...], "settings",
                                 "train_wall_s", "curves"}, "sac": {...}}},
@@ -38,8 +39,8 @@ shared with two other jobs: load average 2.5-3.3):
   on one CPU thread. 1 M steps take about 137 h (5.7 days); the 20 runs 114 days on one core. The SAC runs need a
   GPU or a many-core machine (one run per core); this machine cannot make them.
 
-``benchmarks/dmc_contract.py`` reads ``score_mean``, ``score_std``, ``seeds`` and ``env_steps``
-from the JSON written to ``benchmarks/results/dmc_rl.json``, when that file exists.
+``benchmarks/dmc_contract.py`` reads ``score_mean``, ``score_std``, ``seeds`` and ``env_steps`` from the results
+directory's ``dmc_rl.json``, when that file exists.
 """
 
 from __future__ import annotations
