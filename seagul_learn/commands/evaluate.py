@@ -14,8 +14,7 @@ file's parent directory). ``--task`` is a registered name or ``module:factory`` 
 
 In the DeepMind Control Suite::
 
-    seagul evaluate --dmc pendulum-swingup --network benchmarks/results/networks/dmc_pendulum_....pt \
-        --episodes 10 --seed 0
+    seagul evaluate --dmc pendulum-swingup --network NETWORK.pt --episodes 10 --seed 0
 
 runs the learned MPC (:mod:`seagul_learn.dmc_eval`) in dm_control's own env on reset seeds ``S .. S+N-1``, scored by
 dm_control's reward, and prints a JSON object last: ``{"task", "score_mean", "score_std", "episodes", "median_ms",
