@@ -9,7 +9,7 @@ import pytest
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from benchmarks._common import parse_seeds  # noqa: E402
+from benchmarks._common import parse_seeds
 
 
 def test_ranges_lists_and_mixes_keep_their_order() -> None:

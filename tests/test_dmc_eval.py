@@ -11,10 +11,10 @@ import pytest
 pytest.importorskip("dm_control.suite", reason="dm_control is optional: pip install 'seagul[dmc]'")
 pytest.importorskip("shimmy", reason="shimmy wraps dm_control for Gymnasium: pip install 'seagul[dmc]'")
 
-from seagul_control.dmc import make_dmc_env, run_dmc_episode  # noqa: E402
-from seagul_learn.cli import main  # noqa: E402
-from seagul_learn.dmc_eval import DEFAULT_DEPLOYMENTS, DMCDeployment, learned_dmc_controller  # noqa: E402
-from seagul_learn.value_network import ValueNetwork  # noqa: E402
+from seagul_control.dmc import make_dmc_env, run_dmc_episode
+from seagul_learn.cli import main
+from seagul_learn.dmc_eval import DEFAULT_DEPLOYMENTS, DMCDeployment, learned_dmc_controller
+from seagul_learn.value_network import ValueNetwork
 
 #: Small and interpreted, so the test builds no C code: a 4-unit network, 2 steps of lookahead, one decision per
 #: 10 control steps (100 decisions per episode).
