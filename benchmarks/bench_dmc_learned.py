@@ -83,8 +83,9 @@ def pendulum_task() -> Task:
     return task if task.periodic else dataclasses.replace(task, periodic=(0,))
 
 
-#: ``train --guess``: the trajectory optimizer's plan (``SOLVER_OPTIONS``) or IPOPT from energy-pumping guesses.
-GUESSES = ("plan", "pumping")
+#: ``train --guess``: the trajectory optimizer's plan (``SOLVER_OPTIONS``), IPOPT from energy-pumping guesses, or
+#: both with the lowest converged value kept (``multistart``).
+GUESSES = ("plan", "pumping", "multistart")
 #: The pumping guesses' gain and kicks (``pumping_batch_solver``; ``guesses`` measured gain 2 lowest on 5 of 6 starts).
 PUMPING_GAIN = 2.0
 PUMPING_KICKS = (1.0, -1.0)
@@ -124,11 +125,13 @@ def train_config(sampler: str, budget: int, seed: int) -> Any:
     )
 
 
-def pumping_batch_solver() -> Any:
+def pumping_batch_solver(with_plan: bool = False) -> Any:
     """A batch solver for :func:`seagul_learn.training.train` (``batch_solver=``): every start solved by IPOPT (the
     task's transcription, as the trajectory optimizer builds it) from the energy-pumping guesses
     :func:`pumping_guess` (``PUMPING_GAIN``, each of ``PUMPING_KICKS``), the lowest converged value kept, labelled as
-    the optimizer labels its own solutions."""
+    the optimizer labels its own solutions. ``with_plan``: the trajectory optimizer's own plan (``SOLVER_OPTIONS``)
+    is one more candidate (near upright the pumping guesses lead away from the top: their values there are ~6 where
+    the plan's are ~0)."""
     from seagul_learn.trajopt import TrajectoryOptimizer
 
     task = pendulum_task()
@@ -145,6 +148,10 @@ def pumping_batch_solver() -> Any:
             solutions.append(transcription.solve(x, tau, guess=transcription.pack_guess(states, inputs)))
         solved = [sol for sol in solutions if sol.success]
         best = min(solved, key=lambda sol: sol.objective) if solved else None
+        if with_plan:
+            planned = optimizer.solve(x, tau)
+            if planned.success and (best is None or planned.value <= best.objective):
+                return planned
         return optimizer._result(
             x,
             tau,
@@ -170,7 +177,8 @@ def train(sampler: str, budget: int, seed: int, out: Path, guess: str = "plan") 
     if guess == "plan":
         run(train_config(sampler, budget, seed), out)
     else:
-        run(train_config(sampler, budget, seed), out, batch_solver=pumping_batch_solver(), solver_name=f"{guess}-bench")
+        solver = pumping_batch_solver(with_plan=guess == "multistart")
+        run(train_config(sampler, budget, seed), out, batch_solver=solver, solver_name=f"{guess}-bench")
     wall = time.perf_counter() - start
     target = network_path(sampler, budget, seed, guess)
     target.parent.mkdir(parents=True, exist_ok=True)
