@@ -143,8 +143,7 @@ class ReferenceSettings:
     """IPOPT's ``tol``."""
     codegen: bool = True
     """Generate C for the NLP's functions and compile them once (:func:`seagul_control.codegen.compile_nlp_library`,
-    cached under ``~/.cache/seagul/casadi``); without a C compiler it warns and interprets. Compiled, an acrobot
-    iteration is about 10x cheaper than CasADi's SX virtual machine's (docs/experiments/dmc-reference.md)."""
+    cached under ``~/.cache/seagul/casadi``); without a C compiler it warns and interprets."""
     feasibility_tol: float = 1e-6
     """Largest defect (state units) of an unconverged solve that is still used as a plan."""
 
