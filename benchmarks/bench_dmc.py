@@ -21,9 +21,20 @@ controllers' gains were tuned on seeds 100-139, :data:`seagul_control.spong.TUNI
 Every row decides at every control step (``hold`` 1; the seagul tasks' control period is the suite's). The score
 is the sum of dm_control's 1,000 rewards (:func:`seagul_control.dmc.run_dmc_episode`); the decision time is the
 controller call's wall time in this process (per episode its median and 95th percentile; the row reports the median
-of each over the episodes). Writes ``{"tasks": {env_id: {"rows": [{"controller", "scores", "mean", "std", "seeds",
-"decision_ms_median", "decision_ms_p95", "hold"}]}}, "seeds", "tuning_seeds", "params", "wall_s", "command",
-"machine"}`` (``params``: each classical controller's parameters) and prints a Markdown table on stderr.
+of each over the episodes).
+
+Writes one block per task, keyed by the suite's short name (``"acrobot-swingup"``, ``"cartpole-swingup"``,
+``"cartpole-swingup_sparse"``, ``"pendulum-swingup"``), beside ``"seeds", "tuning_seeds", "params", "wall_s",
+"command", "machine"`` (``params``: each classical controller's parameters)::
+
+    {"env_id", "classical": [{"controller", "scores", "mean", "std", "seeds", "decision_ms_median",
+     "decision_ms_p95", "hold"}], "learned_mpc": {"score_mean", "score_std", "seeds", "episodes", "solves",
+     "horizon", "median_ms", "p95_ms", "network", ...}, "full_horizon": {"score_mean", "score_std", "episodes",
+     ...}, "sac": ..., "ppo": {"score_mean", "score_std", "seeds", "env_steps"}, "published": [{"method", "score",
+     "env_steps", "source"}]}
+
+The ``classical`` rows are run here; the other blocks are gathered from the result files of their own benchmarks
+(:mod:`benchmarks.dmc_contract`; ``None`` where that run has not been made). It prints a Markdown table on stderr.
 
 ``--tune TASK`` (``pendulum``, ``cartpole``, ``acrobot``) instead runs the random search the default parameters
 came from: ``--trials`` draws from the task's search box (:data:`SEARCH`), each scored by its mean over the first
@@ -49,7 +60,8 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks._common import machine  # noqa: E402
+from benchmarks._common import machine, parse_seeds  # noqa: E402
+from benchmarks.dmc_contract import assemble, short_name  # noqa: E402
 from seagul_control import spong  # noqa: E402
 from seagul_control.dmc import (  # noqa: E402
     DMC_ENV_IDS,
@@ -145,18 +157,6 @@ class RandomController:
         return self.rng.uniform(-1.0, 1.0, size=1)
 
 
-def parse_seeds(text: str) -> list[int]:
-    """``"0-9"`` or ``"0,3,5"`` (or a mix, ``"0-4,10"``) -> the list of seeds."""
-    seeds: list[int] = []
-    for part in text.split(","):
-        if "-" in part:
-            lo, hi = part.split("-")
-            seeds.extend(range(int(lo), int(hi) + 1))
-        elif part.strip():
-            seeds.append(int(part))
-    return seeds
-
-
 def score_row(env_id: str, name: str, make: Callable[[int], Any], seeds: list[int], hold: int = 1) -> dict[str, Any]:
     """One row of the table: ``make(seed)`` builds the controller of each episode (a fresh one, so no state carries
     over between seeds)."""
@@ -184,7 +184,7 @@ def score_row(env_id: str, name: str, make: Callable[[int], Any], seeds: list[in
 
 
 def benchmark(seeds: list[int]) -> dict[str, Any]:
-    tasks: dict[str, Any] = {}
+    tasks: dict[str, list[dict[str, Any]]] = {}
     params: dict[str, Any] = {}
     for env_id in DMC_ENV_IDS:
         name, params_cls, controller_cls = CLASSICAL[env_id]
@@ -199,21 +199,26 @@ def benchmark(seeds: list[int]) -> dict[str, Any]:
             score_row(env_id, "lqr", lambda s, policy=lqr: PredictController(policy), seeds, hold=hold),
             score_row(env_id, name, lambda s, c=controller_cls, p=p: c(p), seeds),
         ]
-        tasks[env_id] = {"rows": rows}
+        tasks[env_id] = rows
         for row in rows:
             print(f"{env_id} {row['controller']}: {row['mean']:.1f} +- {row['std']:.1f}", file=sys.stderr, flush=True)
-    return {"tasks": tasks, "seeds": seeds, "tuning_seeds": list(spong.TUNING_SEEDS), "params": params}
+    return {**assemble(tasks), "seeds": seeds, "tuning_seeds": list(spong.TUNING_SEEDS), "params": params}
 
 
 def markdown(result: dict[str, Any]) -> str:
     lines = ["| env | controller | mean | std | decision ms (median / p95) |", "|---|---|---|---|---|"]
-    for env_id, block in result["tasks"].items():
-        for row in block["rows"]:
+    for name in (short_name(env_id) for env_id in DMC_ENV_IDS):
+        block = result[name]
+        for row in block["classical"]:
             lines.append(
-                f"| {env_id.removeprefix('dm_control/').removesuffix('-v0')} | {row['controller']} | "
-                f"{row['mean']:.1f} | {row['std']:.1f} | "
+                f"| {name} | {row['controller']} | {row['mean']:.1f} | {row['std']:.1f} | "
                 f"{row['decision_ms_median']:.3f} / {row['decision_ms_p95']:.3f} |"
             )
+        for key in ("learned_mpc", "full_horizon", "sac", "ppo"):
+            other = block[key]
+            if other is not None:
+                timing = f"{other['median_ms']:.3f} / {other['p95_ms']:.3f}" if other.get("median_ms") else ""
+                lines.append(f"| {name} | {key} | {other['score_mean']:.1f} | {other['score_std']:.1f} | {timing} |")
     return "\n".join(lines)
 
 
@@ -261,7 +266,10 @@ def main(argv: list[str] | None = None) -> None:
         for row in tune(args.tune, args.trials, args.tune_seed):
             print(json.dumps(row))
         return
-    seeds = parse_seeds(args.seeds)
+    try:
+        seeds = parse_seeds(args.seeds)
+    except ValueError as exc:
+        parser.error(str(exc))
     if set(seeds) & set(spong.TUNING_SEEDS):
         parser.error(f"evaluation seeds overlap the tuning seeds {spong.TUNING_SEEDS[0]}-{spong.TUNING_SEEDS[-1]}")
     start = time.perf_counter()

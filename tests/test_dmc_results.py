@@ -1,0 +1,101 @@
+"""``benchmarks/results/dmc.json`` keeps its contract (one block per suite task with the learned MPC, the
+full-horizon reference, SAC, PPO and the published scores), and ``benchmarks/dmc_contract`` builds those blocks from
+the other benchmarks' result files without inventing anything."""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from benchmarks import dmc_contract  # noqa: E402
+
+TASKS = ("acrobot-swingup", "cartpole-swingup", "pendulum-swingup")
+LEARNED_KEYS = {"score_mean", "score_std", "seeds", "episodes", "solves", "horizon", "median_ms", "p95_ms", "network"}
+
+
+@pytest.fixture(scope="module")
+def dmc() -> dict[str, Any]:
+    return json.loads((ROOT / "benchmarks" / "results" / "dmc.json").read_text())
+
+
+def test_every_task_has_its_block(dmc: dict[str, Any]) -> None:
+    for name in (*TASKS, "cartpole-swingup_sparse"):
+        block = dmc[name]
+        assert {"learned_mpc", "full_horizon", "sac", "ppo", "published", "classical"} <= set(block)
+        assert block["env_id"] == f"dm_control/{name}-v0"
+        for entry in block["published"]:
+            assert {"method", "score", "env_steps", "source"} <= set(entry)
+            assert 0 <= entry["score"] <= 1000 and entry["env_steps"] > 0
+        for row in block["classical"]:
+            assert row["mean"] == pytest.approx(np.mean(row["scores"]), abs=1e-3)
+            assert row["seeds"] == dmc["seeds"]
+
+
+def test_the_filled_blocks_have_the_contract_fields(dmc: dict[str, Any]) -> None:
+    for name in TASKS:
+        block = dmc[name]
+        if block["learned_mpc"] is not None:
+            learned = block["learned_mpc"]
+            assert LEARNED_KEYS <= set(learned)
+            assert (ROOT / learned["network"]).is_file()  # networks are committed
+            assert learned["seeds"] >= 1 and learned["episodes"] >= 1
+            scores = [s for n in learned["networks"] for s in n["scores"]]
+            assert learned["score_mean"] == pytest.approx(np.mean(scores), abs=1e-3)
+        if block["full_horizon"] is not None:
+            assert {"score_mean", "score_std", "episodes"} <= set(block["full_horizon"])
+        for algo in ("sac", "ppo"):
+            if block[algo] is not None:
+                assert {"score_mean", "score_std", "seeds", "env_steps"} <= set(block[algo])
+
+
+def test_the_blocks_are_what_their_source_files_say(dmc: dict[str, Any]) -> None:
+    """dmc.json's gathered blocks equal what dmc_contract reads from the committed source files now (nothing is
+    edited by hand, nothing stale)."""
+    for name in (*TASKS, "cartpole-swingup_sparse"):
+        env_id = dmc[name]["env_id"]
+        assert dmc[name]["learned_mpc"] == dmc_contract.learned_block(env_id)
+        assert dmc[name]["full_horizon"] == dmc_contract.reference_block(env_id)
+        assert dmc[name]["published"] == dmc_contract.published_block(env_id)
+
+
+def _write(tmp: Path, name: str, payload: dict[str, Any]) -> None:
+    (tmp / name).write_text(json.dumps(payload))
+
+
+def test_assemble_pools_the_networks_and_leaves_missing_runs_empty(tmp_path: Path) -> None:
+    env_id = "dm_control/pendulum-swingup-v0"
+    row = {
+        "scores": [800.0, 820.0],
+        "mean": 810.0,
+        "seeds": [0, 1],
+        "decision_ms_median": 1.0,
+        "decision_ms_p95": 2.0,
+        "hold": 1,
+        "solves": 1500,
+        "network": "a.pt",
+        "horizon": 10,
+    }
+    other = row | {"scores": [700.0, 740.0], "mean": 720.0, "decision_ms_median": 3.0, "network": "b.pt"}
+    _write(tmp_path, "dmc_learned.json", {"tasks": {env_id: {"rows": [row, other]}}})
+    _write(
+        tmp_path,
+        "dmc_reference.json",
+        {"tasks": {env_id: {"mean": 850.0, "std": 10.0, "scores": [840.0, 860.0], "seeds": [0, 1]}}},
+    )
+    blocks = dmc_contract.assemble({env_id: [], "dm_control/acrobot-swingup-v0": []}, tmp_path)
+    learned = blocks["pendulum-swingup"]["learned_mpc"]
+    assert learned["score_mean"] == pytest.approx(765.0) and learned["seeds"] == 2 and learned["episodes"] == 2
+    assert learned["score_std"] == pytest.approx(np.std([800, 820, 700, 740]), abs=1e-3)
+    assert learned["median_ms"] == pytest.approx(2.0) and learned["network"] == "a.pt"
+    assert blocks["pendulum-swingup"]["full_horizon"]["score_mean"] == 850.0
+    acrobot = blocks["acrobot-swingup"]
+    assert acrobot["learned_mpc"] is None and acrobot["full_horizon"] is None
+    assert acrobot["sac"] is None and acrobot["ppo"] is None and acrobot["published"] == []
