@@ -63,7 +63,7 @@ class DMCDeployment:
 #: The deployment per suite env (Gymnasium id), chosen on the tuning reset seeds; envs not listed use
 #: ``DMCDeployment()``.
 DEFAULT_DEPLOYMENTS: dict[str, DMCDeployment] = {
-    "dm_control/pendulum-swingup-v0": DMCDeployment(horizon=10, time_to_go=5.0, hold=1),
+    "dm_control/pendulum-swingup-v0": DMCDeployment(horizon=5, time_to_go=5.0, hold=1),
 }
 
 
