@@ -126,9 +126,21 @@ CURRENT: dict[str, tuple[str, str]] = {
         "python benchmarks/bench_dmc.py --json benchmarks/results/dmc.json",
     ),
     "dmc_published.json": (
-        "published DeepMind Control Suite swing-up scores, each computed from its authors' released per-seed "
-        "results at a stated budget (source repository and commit per entry)",
+        "published DeepMind Control Suite swing-up scores at a stated budget, each computed from its authors' "
+        "released per-seed results or read off their published table (source repository and commit per entry)",
         "python benchmarks/dmc_published.py",
+    ),
+    "dmc_reference.json": (
+        "the full-horizon reference on the four swing-ups (the true model, the whole episode by multiple shooting "
+        "through MuJoCo's step, re-solved every 25 control steps), reset seeds 0-9: scores, search and re-solve "
+        "times, failed re-solves",
+        "python benchmarks/bench_dmc_reference.py",
+    ),
+    "dmc_learned.json": (
+        "the learned short-horizon MPC on the suite's pendulum: five networks (uniform starts, 1,500 solves each) "
+        "scored on reset seeds 0-9, the tuning lines its setting was chosen by, and label-guess variants",
+        "python benchmarks/bench_dmc_learned.py evaluate NETWORKS --solves ... --horizon 5 --tau 5 --seeds 0-9 "
+        "--json benchmarks/results/dmc_learned.json",
     ),
     "networks/": ("value networks: the shipped ones and one representative seed of each compared sampler", ""),
     "models/": ("the shipped SB3 models (PPO and SAC per task)", ""),
@@ -371,6 +383,47 @@ def readme_block() -> str:
         "that distance); the final distance is over the whole state (the glider's includes its speeds, which its "
         "rule allows up to 2 m/s). Source: `benchmarks/results/baselines.json`, every row measured in one run "
         "([all results, with the commands](docs/results.md))." + _load_sentence(base.get("machine")),
+        "",
+        readme_dmc(),
+    ])
+
+
+def _best_published(block: Mapping[str, Any]) -> str:
+    pub = block.get("published") or []
+    if not pub:
+        return "-"
+    best = max(pub, key=lambda p: p["score"])
+    return f"{best['score']:.0f} ({best['method']}, {best['env_steps'] / 1e6:g} M steps)"
+
+
+def readme_dmc() -> str:
+    """The DeepMind Control Suite's swing-ups in the README: one row per task from ``dmc.json``'s blocks."""
+    data = load("dmc.json")
+    rows = []
+    for name in DMC_TASKS:
+        b = data[name]
+        learned = b.get("learned_mpc")
+        ref = b.get("full_horizon")
+        swing_ups = [r for r in b["classical"] if r["controller"] not in ("zero", "random", "lqr")]
+        classical = max(swing_ups, key=lambda r: r["mean"])
+        rows.append([
+            name,
+            "-" if learned is None else (f"{learned['score_mean']:.0f} ± {learned['score_std']:.0f} "
+                                         f"({learned['seeds']} seeds, N = {learned['horizon']}, {learned['solves']:,} solves, "
+                                         f"{learned['median_ms']:.1f} ms)"),
+            "-" if ref is None else f"{ref['score_mean']:.0f} ± {ref['score_std']:.0f}",
+            f"{classical['mean']:.0f} ± {classical['std']:.0f} ({DMC_LABELS.get(classical['controller'], '')})",
+            *["-" if b.get(algo) is None else f"{b[algo]['score_mean']:.0f} ({b[algo]['env_steps'] / 1e6:g} M)"
+              for algo in ("sac", "ppo")],
+            _best_published(b),
+        ])
+    return "\n".join([
+        "**DeepMind Control Suite swing-ups**, scored by dm_control's own reward on its own episodes (0 to 1000, "
+        f"mean ± std over reset seeds {data['seeds'][0]}-{data['seeds'][-1]}; `benchmarks/results/dmc.json`, "
+        "[details](docs/results.md#deepmind-control-suite-swing-ups)). A dash is a run not made yet.",
+        "",
+        table(["task", "learned MPC", "full-horizon reference", "classical swing-up", "SAC", "PPO", "best published"],
+              rows),
     ])
 
 
@@ -587,7 +640,6 @@ def section_dmc() -> str:
     """The suite's swing-ups: our controllers' scores (``dmc.json``, ``dmc_reference.json`` when present) and the
     published ones (``dmc_published.json`` when present), all on dm_control's own reward (0..1000)."""
     data = load("dmc.json")
-    tasks = data["tasks"]
     out = ["## DeepMind Control Suite swing-ups", ""]
     out.append(
         "Scored by dm_control's own reward on dm_control's own episodes (`gym.make(\"dm_control/<task>-v0\")` "
@@ -598,9 +650,8 @@ def section_dmc() -> str:
         "[the suite tasks](tutorials/dmc-tasks.md)."
     )
     rows_by: dict[str, dict[str, Mapping[str, Any]]] = {}
-    for env_id, block in tasks.items():
-        name = env_id.split("/")[-1].removesuffix("-v0")
-        for r in block["rows"]:
+    for name in DMC_TASKS:
+        for r in data[name]["classical"]:
             rows_by.setdefault(r["controller"], {})[name] = r
     reference = (RESULTS / "dmc_reference.json").exists() and load("dmc_reference.json")
     rows = []
@@ -609,14 +660,31 @@ def section_dmc() -> str:
         rows.append(["full-horizon reference (true model, re-planned)", *[_dmc_cell(ref.get(t)) for t in DMC_TASKS]])
     for controller, per_task in rows_by.items():
         rows.append([DMC_LABELS.get(controller, controller), *[_dmc_cell(per_task.get(t)) for t in DMC_TASKS]])
+    learned = (RESULTS / "dmc_learned.json").exists() and load("dmc_learned.json")
+    for env_id, block in (learned["tasks"] if learned else {}).items():
+        name, lp = env_id.split("/")[-1].removesuffix("-v0"), learned["params"]
+        for r in block["rows"]:
+            label = (f"learned MPC, N = {lp['horizon']}, tau_V = {lp['tau_v']:g} s, {r['solves']:,} solves "
+                     f"(`{r['network'].split('/')[-1]}`, {r['decision_ms_median']:.2f} ms median step)")
+            rows.append([label, *[_dmc_cell(r) if t == name else "" for t in DMC_TASKS]])
+    pooled = {t: data[t]["learned_mpc"] for t in DMC_TASKS if data[t].get("learned_mpc")}
+    if pooled:
+        rows.append(["**learned MPC, every network's episodes pooled**", *[
+            "" if t not in pooled else f"**{pooled[t]['score_mean']:.0f} ± {pooled[t]['score_std']:.0f}** "
+            f"({pooled[t]['seeds']} x {pooled[t]['episodes']})" for t in DMC_TASKS]])
     out += ["", table(["controller", *DMC_TASKS], rows), "",
             f"Command: `{data['command']}` ({machine_line(data.get('machine'))})."]
+    if learned:
+        out[-1] += (" Learned MPC: `benchmarks/results/dmc_learned.json`, `" + learned["command"].split(" --tuning")[0]
+                    + "`; the setting was chosen on reset seeds " + f"{learned['tuning_seeds'][0]}-"
+                    f"{learned['tuning_seeds'][-1]} ([the learned MPC](experiments/dmc-learned.md)).")
     if (RESULTS / "dmc_published.json").exists():
         pub = load("dmc_published.json")["scores"]
         prow = [[p["task"], p["method"], f"{p['score']:.0f}", f"{p['env_steps']:,}", p.get("observations", ""),
                  p.get("seeds") or "", p["source"]] for p in pub if p["task"] in DMC_TASKS]
-        out += ["", "Published scores on the same tasks (`benchmarks/results/dmc_published.json`, computed from "
-                "each method's released per-seed results; each number's source and budget in environment steps):",
+        out += ["", "Published scores on the same tasks (`benchmarks/results/dmc_published.json`: each computed "
+                "from the authors' released per-seed results or, where only a table is published, read off it; "
+                "each number's source and budget in environment steps):",
                 "",
                 table(["task", "method", "score", "env steps", "observations", "seeds", "source"], prow)]
     return "\n".join(out)
