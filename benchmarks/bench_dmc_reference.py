@@ -42,24 +42,12 @@ from tqdm import tqdm
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from benchmarks._common import machine  # noqa: E402
+from benchmarks._common import machine, parse_seeds  # noqa: E402
 from seagul_control.dmc import dmc_env_id, run_dmc_episode  # noqa: E402
 from seagul_control.dmc_reference import DEFAULT_SETTINGS, FullHorizonReference  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 DEFAULT_TASKS = "acrobot-swingup,pendulum-swingup,cartpole-swingup,cartpole-swingup_sparse"
-
-
-def parse_seeds(text: str) -> list[int]:
-    """``"0-9"`` or ``"0,3,5"`` (or a mix, ``"0-4,10"``) -> the list of seeds."""
-    seeds: list[int] = []
-    for part in text.split(","):
-        if "-" in part:
-            lo, hi = part.split("-")
-            seeds.extend(range(int(lo), int(hi) + 1))
-        elif part:
-            seeds.append(int(part))
-    return seeds
 
 
 def partial_path(json_path: Path) -> Path:
