@@ -409,7 +409,8 @@ def readme_dmc() -> str:
         rows.append([
             name,
             "-" if learned is None else (f"{learned['score_mean']:.0f} ± {learned['score_std']:.0f} "
-                                         f"({learned['seeds']} seeds, N = {learned['horizon']}, {learned['solves']:,} solves, "
+                                         f"({learned['seeds']} seeds, N = {learned['horizon']}, "
+                                         f"{learned['solves']:,} solves, "
                                          f"{learned['median_ms']:.1f} ms)"),
             "-" if ref is None else f"{ref['score_mean']:.0f} ± {ref['score_std']:.0f}",
             f"{classical['mean']:.0f} ± {classical['std']:.0f} ({DMC_LABELS.get(classical['controller'], '')})",
