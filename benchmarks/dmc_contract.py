@@ -41,6 +41,11 @@ def short_name(env_id: str) -> str:
     return env_id.removeprefix("dm_control/").removesuffix("-v0")
 
 
+def _source(name: str) -> str:
+    """The repository path of a result file, as a block's ``source``."""
+    return f"benchmarks/results/{name}"
+
+
 def _load(name: str, results: Path) -> dict[str, Any] | None:
     path = results / name
     return json.loads(path.read_text()) if path.exists() else None
@@ -72,7 +77,7 @@ def learned_block(env_id: str, results: Path = RESULTS) -> dict[str, Any] | None
             {"network": row["network"], "solves": row["solves"], "mean": row["mean"], "scores": row["scores"]}
             for row in rows
         ],
-        "source": "benchmarks/results/dmc_learned.json",
+        "source": _source("dmc_learned.json"),
     }
 
 
@@ -89,7 +94,7 @@ def reference_block(env_id: str, results: Path = RESULTS) -> dict[str, Any] | No
         "reset_seeds": entry["seeds"],
         "median_ms": entry.get("decision_ms_median"),
         "p95_ms": entry.get("decision_ms_p95"),
-        "source": "benchmarks/results/dmc_reference.json",
+        "source": _source("dmc_reference.json"),
     }
 
 
@@ -101,7 +106,7 @@ def rl_block(env_id: str, algo: str, results: Path = RESULTS) -> dict[str, Any] 
     if not entry:
         return None
     return {key: entry[key] for key in ("score_mean", "score_std", "seeds", "env_steps")} | {
-        "source": "benchmarks/results/dmc_rl.json"
+        "source": _source("dmc_rl.json")
     }
 
 
