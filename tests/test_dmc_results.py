@@ -99,3 +99,19 @@ def test_assemble_pools_the_networks_and_leaves_missing_runs_empty(tmp_path: Pat
     acrobot = blocks["acrobot-swingup"]
     assert acrobot["learned_mpc"] is None and acrobot["full_horizon"] is None
     assert acrobot["sac"] is None and acrobot["ppo"] is None and acrobot["published"] == []
+
+
+def test_the_cli_deploys_what_the_benchmark_measured(dmc: dict[str, Any]) -> None:
+    """``seagul evaluate --dmc``'s defaults (``DEFAULT_DEPLOYMENTS``) are the setting of each committed row."""
+    from seagul_learn.dmc_eval import DEFAULT_DEPLOYMENTS, DMCDeployment
+
+    for name in TASKS:
+        learned = dmc[name]["learned_mpc"]
+        if learned is None:
+            continue
+        setting = DEFAULT_DEPLOYMENTS.get(dmc[name]["env_id"], DMCDeployment())
+        assert (setting.horizon, setting.time_to_go, setting.hold) == (
+            learned["horizon"],
+            learned["time_to_go"],
+            learned["hold"],
+        )
