@@ -204,3 +204,25 @@ def test_per_knot_grad_theta_sums_the_tail_and_matches_finite_differences_of_a_t
             values.append(tail.solve(res.states[k], res.time_to_go[k]).value)
         fd[i] = (values[0] - values[1]) / (2 * step)
     np.testing.assert_allclose(res.knot_grad_theta[k], fd, rtol=1e-4, atol=1e-7)
+
+
+@pytest.mark.parametrize("name", ["acrobot", "glider"])
+def test_a_scaled_box_widens_each_side_by_its_ratio_to_the_nominal_value_and_names_bad_input(name):
+    task = make_task(name)
+    space = task.parameters
+    same = space.scaled(1.0, task.theta)
+    np.testing.assert_allclose(same.low, space.low)
+    np.testing.assert_allclose(same.high, space.high)
+    wide, narrow = space.scaled(2.0, task.theta), space.scaled(0.5, task.theta)
+    # ratios to the nominal value are squared (2x) or square-rooted (0.5x); the nominal robot stays inside
+    np.testing.assert_allclose(wide.low / task.theta, (space.low / task.theta) ** 2)
+    np.testing.assert_allclose(narrow.high / task.theta, np.sqrt(space.high / task.theta))
+    assert np.all(wide.low < space.low) and np.all(wide.high > space.high) and np.all(wide.low > 0)
+    assert np.all(narrow.low > space.low) and np.all(narrow.high < space.high)
+    assert wide.names == space.names and wide.dynamics is space.dynamics
+    with pytest.raises(ValueError, match="factor must be a positive number"):
+        space.scaled(0.0, task.theta)
+    with pytest.raises(ValueError, match="outside the box"):
+        space.scaled(2.0, space.high * 1.1)
+    with pytest.raises(ValueError, match="positive values"):
+        space.scaled(2.0, task.theta[:-1])

@@ -129,6 +129,26 @@ class ParameterSpace:
         """``{name: [low, high]}`` (the JSON form of ``Theta``)."""
         return {n: [float(lo), float(hi)] for n, lo, hi in zip(self.names, self.low, self.high, strict=True)}
 
+    def scaled(self, factor: float, nominal: Any) -> ParameterSpace:
+        """The box ``factor`` times as wide about ``nominal`` in ratio: each side's ratio to the nominal value is
+        raised to ``factor``, ``low' = nominal (low / nominal)^factor`` (and ``high'`` alike), so a box of +-20 %
+        masses and half-to-twice damping becomes 0.64-1.44 and quarter-to-four-times at ``factor=2``; values stay
+        positive. The dynamics are the same function (a box is where ``theta`` is drawn, not what it may be).
+
+        Raises:
+            ValueError: ``factor`` is not a positive number, or ``nominal`` is not a positive point of the box.
+        """
+        if not (np.isfinite(factor) and factor > 0):
+            raise ValueError(f"scaled: factor must be a positive number, got {factor!r}")
+        center = np.asarray(nominal, dtype=float).reshape(-1)
+        if center.shape != (self.size,) or not np.all(center > 0):
+            raise ValueError(f"scaled: nominal must be {self.size} positive values, got {nominal!r}")
+        if np.any(center < self.low) or np.any(center > self.high):
+            raise ValueError(f"scaled: nominal {center.tolist()} lies outside the box {self.box()}")
+        return dataclasses.replace(
+            self, low=center * (self.low / center) ** factor, high=center * (self.high / center) ** factor
+        )
+
     def problems(self, params: Any, nx: int, nu: int) -> list[str]:
         """What is wrong with this space for a task with these parameters and sizes (empty when well formed)."""
         out: list[str] = []
