@@ -112,6 +112,21 @@ def test_the_estimate_survives_a_balance_at_rest_that_says_nothing_about_the_rob
     assert float(np.max(np.abs(short.theta - theta) / width)) > 0.2
 
 
+def test_a_robot_outside_the_declared_box_is_estimated_where_it_is():
+    space = TASK.parameters
+    wide = space.scaled(2.0, TASK.theta)
+    theta = wide.low + np.array([0.05, 0.95, 0.1, 0.9, 0.97, 0.02]) * (wide.high - wide.low)
+    assert np.any(theta < space.low) and np.any(theta > space.high)
+    free, confined = ParameterEstimator(TASK, prior=1e-6), ParameterEstimator(TASK, prior=1e-6, box_scale=1.0)
+    for x, u, nxt in _transitions(theta, 30):
+        free.update(x, u, nxt)
+        confined.update(x, u, nxt)
+    width = space.high - space.low
+    assert np.all(np.abs(free.theta - theta) < 0.03 * width), (free.theta - theta) / width
+    assert np.all(confined.theta >= space.low) and np.all(confined.theta <= space.high)
+    assert float(np.max(np.abs(confined.theta - theta) / width)) > 0.2
+
+
 def test_the_compiled_estimator_gives_the_virtual_machines_estimates():
     theta = TASK.parameters.low + 0.3 * (TASK.parameters.high - TASK.parameters.low)
     compiled, vm = ParameterEstimator(TASK), ParameterEstimator(TASK, codegen=False)

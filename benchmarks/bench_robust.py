@@ -1,0 +1,414 @@
+"""The robust learned MPC on robots that are not the model, against the oracle and the baselines.
+
+Usage::
+
+    .venv/bin/python benchmarks/bench_robust.py [--tasks acrobot] [--seeds 5] [--starts 50] [--workers 2]
+        [--out DIR] [--update benchmarks/results/param_adversary.json] [--ship] [--figure-dir docs/figures]
+        [--quick] [--dry-run]
+
+Per task, ``--seeds`` networks are trained with the task's recipe ``RobustBenchConfig.recipe``
+(``TrainConfig.recipe(task, recipe, seed=s)``; ``--recipe robust`` learns ``V(x, tau, theta)`` over robots, the
+default ``shipped`` is the nominal robot's recipe) and each is deployed as the shipped robust MPC::
+
+    LimitedLookaheadMPC(task, ValueNetwork.load(network), horizon=H, model_params=True, estimate_robot=True)
+
+(``H = RobustBenchConfig.horizon``, ``--horizon``; every other option at its default). Every controller flies the
+same ``--starts`` held-out X0 starts (``heldout_starts``, never trained on), each simulated on its own robot drawn
+uniformly from the declared box Theta (``ROBOT_SEED``, the robots of ``bench_param_adversary.py``):
+
+* ``robust``: each seed's network (and its snapshot at half the budget), success per seed, median over seeds;
+* ``oracle``: the full-horizon MPC that knows each robot (``FullHorizonMPC(model_params=True)``, ``set_robot``);
+* ``adaptive-quadratic``: the control engineer's adaptive MPC, the same online estimate with the task's quadratic
+  terminal cost at ``quadratic_horizon`` steps (the horizon at which it succeeds on the nominal robot);
+* ``nominal``: the shipped nominal network's MPC as deployed (it plans with the model) and, as a control, the same
+  network with the estimating MPC (``nominal-estimate``);
+* ``lqr``: the task's LQR on the model.
+
+Also: success against the size of the box (robots drawn from ``Theta.scaled(s, nominal)`` for ``s`` in ``SCALES``:
+each side's ratio to the nominal value raised to ``s``) for the robust, the nominal and the oracle MPC; and the online
+estimate's accuracy per step (its error as a fraction of each parameter's width in the declared box) with the whole
+step's time (estimate update plus solve) in ``estimator_episodes`` episodes of the shipped robust MPC.
+
+The shipped network is the seed whose success is the median of the seeds' (the lower one of a tied pair), never the
+best: ``--ship`` copies it to ``benchmarks/results/networks/<task>_robust_<recipe>_b<budget>_seed<s>.pt`` (a
+network already committed there, given with ``--networks``, is shipped where it is). ``--update FILE``
+merges into FILE, per task, the ``"shipped"`` block (``network``, ``horizon``, ``estimate_robot``, ``success_rate``
+(median over seeds), ``oracle_success_rate``, ``nominal_success_rate``, ``budget``, ``seeds``, ``starts``) and the
+``"robust"`` block (per-seed rows, baselines, box sweep, estimator), keeping every other field of the file.
+Every evaluation is cached as JSON under ``--out`` and training resumes from its checkpoints, so a re-run continues.
+The last line of stdout is the result as one JSON object.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import sys
+import time
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+sys.path.insert(0, str(ROOT))
+
+from joblib import Parallel, delayed  # noqa: E402
+
+from benchmarks._common import machine  # noqa: E402
+from benchmarks.bench_param_adversary import ROBOT_SEED, ParamBenchConfig, closed_loop  # noqa: E402
+from seagul_control.evaluation import (  # noqa: E402
+    PolicySpec,
+    episode_env,
+    heldout_starts,
+    is_success,
+)
+from seagul_control.policy_kinds import build_policy  # noqa: E402
+from seagul_envs import make_task  # noqa: E402
+from seagul_learn.experiment.runs import train_one  # noqa: E402
+from seagul_learn.shipped import shipped_network  # noqa: E402
+from seagul_learn.training import TrainConfig  # noqa: E402
+
+SCALES = (0.5, 1.0, 2.0)
+"""Box sizes of the sweep, as multiples of the declared Theta (:meth:`ParameterSpace.scaled`)."""
+NETWORKS = ROOT / "benchmarks" / "results" / "networks"
+
+
+@dataclass
+class RobustBenchConfig:
+    """Every number of one task's run (``--quick`` replaces some)."""
+
+    task: str = "acrobot"
+    seeds: int = 5
+    starts: int = 50
+    """Held-out X0 starts, each on its own robot from Theta (the first 30 are ``bench_param_adversary``'s)."""
+    recipe: str = "shipped"
+    """The task's training recipe of the networks (``TrainConfig.recipe(task, recipe, seed=s)``)."""
+    horizon: int = 10
+    """Lookahead steps of the deployed robust MPC."""
+    quadratic_horizon: int = 10
+    """Horizon of the adaptive quadratic MPC: the acrobot's quadratic MPC succeeds from every nominal start at 10."""
+    estimator_episodes: int = 20
+    train_overrides: dict[str, Any] = field(default_factory=dict)
+    """TrainConfig fields (dotted) replacing the recipe's (``--quick``)."""
+
+    def train_config(self, seed: int) -> TrainConfig:
+        return TrainConfig.recipe(self.task, self.recipe, seed=seed, **self.train_overrides)
+
+    @classmethod
+    def for_task(cls, task: str, quick: bool) -> RobustBenchConfig:
+        if quick:
+            small: dict[str, Any] = {
+                "budget": 20,
+                "runtime.snapshots": (10, 20),
+                "sampler.uniform_solves": 10,
+                "sampler.episodes": 2,
+                "schedule.solves_per_round": 10,
+                "schedule.train_steps_per_round": 50,
+                "refit.steps": 200,
+                "refit.candidates": 0,
+                "runtime.progress": False,
+            }
+            return cls(task=task, seeds=2, starts=3, estimator_episodes=2, horizon=3, train_overrides=small)
+        return cls(task=task)
+
+
+def robust_spec(network: str | Path, horizon: int, label: str = "robust MPC") -> PolicySpec:
+    """The shipped robust MPC: ``LimitedLookaheadMPC(task, ValueNetwork.load(network), horizon=horizon,
+    model_params=True, estimate_robot=True)``, defaults otherwise."""
+    return PolicySpec(
+        "mpc", label, str(network), (("horizon", horizon), ("model_params", True), ("estimate_robot", True))
+    )
+
+
+def train_all(bench: RobustBenchConfig, out: Path, workers: int) -> dict[int, Path]:
+    runs = {seed: out / "train" / f"seed{seed}" for seed in range(bench.seeds)}
+    Parallel(n_jobs=workers)(delayed(train_one)(bench.train_config(s), str(p)) for s, p in runs.items())
+    return runs
+
+
+def estimator_trace(task_name: str, spec: PolicySpec, starts: np.ndarray, robots: np.ndarray) -> dict[str, Any]:
+    """Episodes of ``spec`` with its estimate after every step: the error per parameter as a fraction of its width
+    in the declared box, and the whole step's time (estimate update plus solve)."""
+    task = make_task(task_name)
+    space = task.parameters
+    assert space is not None
+    width = space.high - space.low
+    policy = build_policy(task, spec)
+    errors, step_ms, success = [], [], []
+    for x0, theta in zip(starts, robots, strict=True):
+        env = episode_env(task)
+        obs, info = env.reset(options={"state": np.asarray(x0, dtype=float), "params": np.asarray(theta)})
+        first, done, terminated, trace = True, False, False, []
+        while not done:
+            t0 = time.perf_counter()
+            action, _ = policy.predict(obs, episode_start=np.array([first]), deterministic=True)
+            step_ms.append((time.perf_counter() - t0) * 1e3)
+            first = False
+            obs, _, terminated, truncated, info = env.step(action)
+            done = terminated or truncated
+            trace.append(np.abs(policy.estimate(0) - theta) / width)
+        env.close()
+        success.append(is_success(task, np.asarray(info["state"], dtype=float), bool(terminated)))
+        errors.append(np.array(trace))
+    steps = min(len(e) for e in errors)
+    worst = np.array([e[:steps].max(axis=1) for e in errors])  # per episode and step: the worst parameter
+    return {
+        "episodes": len(errors),
+        "success_rate": float(np.mean(success)),
+        "max_error_median": np.median(worst, axis=0).tolist(),
+        "max_error_q90": np.quantile(worst, 0.9, axis=0).tolist(),
+        "final_error_median_per_parameter": dict(
+            zip(space.names, np.median([e[-1] for e in errors], axis=0).tolist(), strict=True)
+        ),
+        "steps_to_5pct_median": float(np.median([_first_below(w, 0.05) for w in worst])),
+        "step_ms_median": float(np.median(step_ms)),
+        "step_ms_p95": float(np.percentile(step_ms, 95)),
+    }
+
+
+def _relative(path: Path) -> str:
+    """``path`` relative to the repository when inside it."""
+    path = path.resolve()
+    return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
+
+
+def _first_below(trace: np.ndarray, level: float) -> float:
+    """Steps after which the trace stays below ``level`` for good (inf: never)."""
+    above = np.nonzero(trace >= level)[0]
+    if above.size == 0:
+        return 1.0
+    return float(above[-1] + 2) if above[-1] + 1 < trace.size else float("inf")
+
+
+def run_task(
+    bench: RobustBenchConfig, out: Path, workers: int, ship: bool, networks: list[Path] | None = None
+) -> dict[str, Any]:
+    task = make_task(bench.task)
+    space = task.parameters
+    if space is None:
+        raise SystemExit(f"{bench.task} declares no physical parameters")
+    horizon = bench.horizon
+    t0 = time.perf_counter()
+    if networks:
+        # networks trained elsewhere with the same recipe, one per seed (``--networks``)
+        runs = {seed: path for seed, path in enumerate(networks)}
+        bench.seeds = len(networks)
+    else:
+        runs = {seed: run / "network.pt" for seed, run in train_all(bench, out, workers).items()}
+    train_s = time.perf_counter() - t0
+    config = bench.train_config(0)
+    budget = int(config.budget)
+    half = int(config.runtime.snapshots[0]) if config.runtime.snapshots else None
+    starts = heldout_starts(task, bench.starts)
+    robots = space.sample(np.random.default_rng(ROBOT_SEED), bench.starts)
+    scorer = ParamBenchConfig(task=bench.task)
+    ev = out / "eval"
+
+    def score(spec: PolicySpec, name: str, robots_: np.ndarray = robots) -> dict[str, Any]:
+        return closed_loop(scorer, spec, starts, robots_, workers, ev / f"{name}.json")
+
+    per_seed = []
+    for seed, path in runs.items():
+        row: dict[str, Any] = {"seed": seed, "network": _relative(path)}
+        row.update(score(robust_spec(path, horizon), f"robust-seed{seed}"))
+        snapshot = path.parent / f"network_{half}.pt"
+        if half is not None and half < budget and snapshot.is_file():
+            snap = score(robust_spec(snapshot, horizon), f"robust-b{half}-seed{seed}")
+            row[f"success_rate_b{half}"] = snap["success_rate"]
+        row.pop("success", None)
+        per_seed.append(row)
+    rates = [r["success_rate"] for r in per_seed]
+    order = sorted(range(len(rates)), key=lambda i: (rates[i], i))
+    chosen = per_seed[order[(len(order) - 1) // 2]]
+    network = runs[chosen["seed"]]
+    if ship and network.resolve().parent != NETWORKS.resolve():  # a committed network is shipped where it is
+        target = NETWORKS / f"{bench.task}_robust_{bench.recipe}_b{budget}_seed{chosen['seed']}.pt"
+        shutil.copyfile(network, target)
+        network = target
+
+    nominal = shipped_network(task)
+
+    def adaptive_quadratic(steps: int) -> PolicySpec:
+        """The control engineer's adaptive MPC: the same estimate, the task's quadratic terminal cost."""
+        options = (("horizon", steps), ("model_params", True), ("estimate_robot", True))
+        return PolicySpec("mpc", f"adaptive quadratic-terminal MPC (N={steps})", None, options)
+
+    baselines: dict[str, PolicySpec] = {
+        "oracle": PolicySpec("full", "full horizon (knows the robot)", None, (("model_params", True),), True),
+        "adaptive-quadratic": adaptive_quadratic(bench.quadratic_horizon),
+        "lqr": PolicySpec("lqr", "LQR (plans with the model)"),
+    }
+    if nominal is not None:
+        if nominal.horizon != bench.quadratic_horizon:
+            # horizon for horizon with the nominal shipped MPC
+            baselines[f"adaptive-quadratic-N{nominal.horizon}"] = adaptive_quadratic(nominal.horizon)
+        baselines["nominal"] = nominal.spec(f"shipped learned {nominal.horizon}-step MPC (plans with the model)")
+        baselines["nominal-estimate"] = PolicySpec(
+            "mpc",
+            f"shipped network, {nominal.horizon}-step MPC estimating the robot",
+            str(nominal.network),
+            (*nominal.options(), ("model_params", True), ("estimate_robot", True)),
+        )
+    rows = {}
+    for name, spec in baselines.items():
+        result = score(spec, name)
+        rows[name] = {"controller": spec.label, **{k: v for k, v in result.items() if k != "success"}}
+    shipped_spec = robust_spec(network, horizon)
+    sweep: dict[str, dict[str, Any]] = {}
+    swept: dict[str, PolicySpec | None] = {
+        "robust": shipped_spec,
+        "nominal": baselines.get("nominal"),
+        "oracle": baselines["oracle"],
+    }
+    for scale in SCALES:
+        box = space.scaled(scale, task.theta)
+        robots_s = robots if scale == 1.0 else box.sample(np.random.default_rng(ROBOT_SEED), bench.starts)
+        entry: dict[str, Any] = {"box": box.box()}
+        for name, candidate in swept.items():
+            if candidate is None:
+                continue
+            # the declared box's rows are the ones above (the shipped seed's, the baselines')
+            key = (
+                (f"robust-seed{chosen['seed']}" if name == "robust" else name) if scale == 1.0 else f"{name}-x{scale:g}"
+            )
+            entry[name] = score(candidate, key, robots_s)["success_rate"]
+        sweep[f"{scale:g}"] = entry
+    n_est = min(bench.estimator_episodes, bench.starts)
+    estimator = estimator_trace(bench.task, shipped_spec, starts[:n_est], robots[:n_est])
+
+    oracle_rate = rows["oracle"]["success_rate"]
+    shipped = {
+        "network": _relative(network),
+        "horizon": horizon,
+        "estimate_robot": True,
+        "success_rate": float(np.median(rates)),
+        "oracle_success_rate": oracle_rate,
+        "nominal_success_rate": rows["nominal"]["success_rate"] if "nominal" in rows else float("nan"),
+        "budget": budget,
+        "seeds": bench.seeds,
+        "starts": bench.starts,
+    }
+    robust = {
+        "recipe": bench.recipe,
+        "train_settings": config.to_dict(),
+        "shipped_seed": chosen["seed"],
+        "shipped_network_success_rate": chosen["success_rate"],
+        "ratio_to_oracle": shipped["success_rate"] / oracle_rate if oracle_rate else float("nan"),
+        "per_seed": per_seed,
+        "baselines": rows,
+        "box_sweep": sweep,
+        "estimator": estimator,
+        "robot_seed": ROBOT_SEED,
+        "quadratic_horizon": bench.quadratic_horizon,
+        "train_wall_s": round(train_s, 1),
+        "deployed": "LimitedLookaheadMPC(task, ValueNetwork.load(network), horizon=horizon, model_params=True, "
+        "estimate_robot=True)",
+    }
+    return {"shipped": shipped, "robust": robust}
+
+
+def plot(task_name: str, block: dict[str, Any], path: Path) -> None:
+    """Three panels: success per controller (seeds as dots), success against the box size, estimator error."""
+    import matplotlib  # the backend is chosen before pyplot, by the one function that draws
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    robust, shipped = block["robust"], block["shipped"]
+    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), constrained_layout=True)
+    ax = axes[0]
+    seeds = [r["success_rate"] for r in robust["per_seed"]]
+    names = ["robust MPC"] + [r["controller"] for r in robust["baselines"].values()]
+    values = [shipped["success_rate"]] + [r["success_rate"] for r in robust["baselines"].values()]
+    ax.bar(range(len(values)), values, color=["C0"] + ["C7"] * (len(values) - 1), alpha=0.8)
+    ax.plot(np.linspace(-0.15, 0.15, len(seeds)), seeds, "k.", ms=6)
+    ax.set_xticks(range(len(values)), [n.replace(" (", "\n(").replace(", ", ",\n") for n in names], fontsize=7)
+    ax.set_ylim(0, 1.05)
+    ax.set_ylabel(f"success, {shipped['starts']} starts x robots")
+    ax.set_title(f"{task_name}: robots from Theta ({shipped['budget']} solves, {shipped['seeds']} seeds)")
+    bx = axes[1]
+    scales = sorted(robust["box_sweep"], key=float)
+    for name, style in (("robust", "C0o-"), ("nominal", "C7s--"), ("oracle", "C2^:")):
+        ys = [robust["box_sweep"][s].get(name) for s in scales]
+        if all(y is not None for y in ys):
+            bx.plot([float(s) for s in scales], ys, style, label=name)
+    bx.set_xscale("log", base=2)
+    bx.set_xticks([float(s) for s in scales], [f"{float(s):g}x" for s in scales])
+    bx.set_ylim(0, 1.05)
+    bx.set_xlabel("box size (multiple of the declared Theta)")
+    bx.set_title("success against the size of Theta")
+    bx.legend()
+    cx = axes[2]
+    est = robust["estimator"]
+    steps = np.arange(1, len(est["max_error_median"]) + 1)
+    cx.plot(steps, est["max_error_median"], "C0-", label="median")
+    cx.plot(steps, est["max_error_q90"], "C0:", label="90th percentile")
+    cx.set_yscale("log")
+    cx.set_xlabel("control step")
+    cx.set_ylabel("worst parameter error / box width")
+    cx.set_title(f"online estimate ({est['episodes']} episodes)")
+    cx.legend()
+    fig.savefig(path, dpi=100)
+    plt.close(fig)
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--quick", action="store_true", help="a minutes-long check of the pipeline")
+    parser.add_argument("--tasks", default="acrobot", help="comma-separated tasks")
+    parser.add_argument("--seeds", type=int, default=None)
+    parser.add_argument("--starts", type=int, default=None)
+    parser.add_argument("--recipe", default=None, help="the networks' training recipe (default: shipped)")
+    parser.add_argument("--horizon", type=int, default=None, help="the robust MPC's lookahead steps (default 10)")
+    parser.add_argument("--workers", type=int, default=2)
+    parser.add_argument("--out", default=None, help="work directory (default /tmp/seagul-bench-robust)")
+    parser.add_argument("--update", default=None, metavar="JSON", help="merge the blocks into this results file")
+    parser.add_argument("--ship", action="store_true", help="copy the shipped network into benchmarks/results")
+    parser.add_argument("--figure-dir", default=None, help="write <task>_robust_shipped.png here")
+    parser.add_argument(
+        "--networks",
+        nargs="+",
+        default=None,
+        metavar="PT",
+        help="evaluate these networks (one per seed, trained with the recipe) instead of training (one task)",
+    )
+    parser.add_argument("--dry-run", action="store_true", help="print the settings as JSON; run nothing")
+    args = parser.parse_args(argv)
+    out = Path(args.out or f"/tmp/seagul-bench-robust{'-quick' if args.quick else ''}")
+    benches = []
+    for task in args.tasks.split(","):
+        bench = RobustBenchConfig.for_task(task, args.quick)
+        bench.seeds = args.seeds or bench.seeds
+        bench.starts = args.starts or bench.starts
+        bench.recipe = args.recipe or bench.recipe
+        bench.horizon = args.horizon or bench.horizon
+        benches.append(bench)
+    if args.dry_run:
+        print(json.dumps({b.task: {**asdict(b), "train": b.train_config(0).to_dict()} for b in benches}))
+        return 0
+    t0 = time.perf_counter()
+    result: dict[str, Any] = {}
+    for bench in benches:
+        networks = [Path(p) for p in args.networks] if args.networks else None
+        result[bench.task] = run_task(bench, out / bench.task, args.workers, args.ship, networks)
+        if args.figure_dir:
+            plot(bench.task, result[bench.task], Path(args.figure_dir) / f"{bench.task}_robust_shipped.png")
+    result["machine"] = {**machine("torch"), "wall_s": round(time.perf_counter() - t0, 1)}
+    if args.update:
+        path = Path(args.update)
+        merged = json.loads(path.read_text()) if path.is_file() else {}
+        for task, blocks in result.items():
+            if task == "machine":
+                merged.setdefault("robust_machine", {}).update(blocks)
+            else:
+                merged.setdefault(task, {}).update(blocks)
+        path.write_text(json.dumps(merged, indent=1) + "\n")
+    print(json.dumps(result))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

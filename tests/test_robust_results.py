@@ -1,0 +1,78 @@
+"""The committed robust MPC (``param_adversary.json``'s ``shipped`` blocks): the contract's keys, figures that agree
+with the rows they summarise, and a network that deploys as the block says."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
+from seagul_envs import make_task
+from seagul_learn.value_network import ValueNetwork
+
+ROOT = Path(__file__).resolve().parents[1]
+RESULT = json.loads((ROOT / "benchmarks" / "results" / "param_adversary.json").read_text())
+SHIPPED_KEYS = {
+    "network",
+    "horizon",
+    "estimate_robot",
+    "success_rate",
+    "oracle_success_rate",
+    "nominal_success_rate",
+    "budget",
+    "seeds",
+    "starts",
+}
+TASKS = [t for t in ("acrobot", "glider") if "shipped" in RESULT.get(t, {})]
+
+
+def test_the_acrobot_has_a_shipped_robust_mpc():
+    assert "acrobot" in TASKS
+
+
+@pytest.mark.parametrize("task_name", TASKS)
+def test_the_shipped_block_holds_the_contracts_keys_and_agrees_with_its_rows(task_name):
+    block = RESULT[task_name]
+    shipped, robust = block["shipped"], block["robust"]
+    assert SHIPPED_KEYS <= set(shipped)
+    assert isinstance(shipped["horizon"], int) and shipped["horizon"] >= 1
+    assert isinstance(shipped["estimate_robot"], bool)
+    assert shipped["seeds"] >= 5 and shipped["seeds"] == len(robust["per_seed"])
+    assert shipped["budget"] <= 3000
+    rates = [row["success_rate"] for row in robust["per_seed"]]
+    assert shipped["success_rate"] == pytest.approx(float(np.median(rates)))
+    assert shipped["oracle_success_rate"] == robust["baselines"]["oracle"]["success_rate"]
+    assert shipped["nominal_success_rate"] == robust["baselines"]["nominal"]["success_rate"]
+    # the shipped network is the median seed's, not the best one
+    chosen = next(r for r in robust["per_seed"] if r["seed"] == robust["shipped_seed"])
+    assert chosen["success_rate"] == robust["shipped_network_success_rate"]
+    assert sorted(rates)[(len(rates) - 1) // 2] == chosen["success_rate"]
+    assert set(robust["box_sweep"]) == {"0.5", "1", "2"}
+    assert robust["box_sweep"]["1"]["oracle"] == shipped["oracle_success_rate"]
+    assert robust["box_sweep"]["1"]["robust"] == chosen["success_rate"]
+
+
+@pytest.mark.parametrize("task_name", TASKS)
+def test_the_shipped_network_deploys_as_the_block_says_and_plans_for_its_estimate(task_name):
+    shipped = RESULT[task_name]["shipped"]
+    path = ROOT / shipped["network"]
+    assert path.is_file(), f"{shipped['network']} is not committed"
+    task = make_task(task_name)
+    network = ValueNetwork.load(path)
+    # the block's deployment, compiled by CasADi's virtual machine here (no C build in the default suite)
+    mpc = LimitedLookaheadMPC(
+        task,
+        network,
+        horizon=shipped["horizon"],
+        options=MPCOptions(jit=False),
+        model_params=True,
+        estimate_robot=shipped["estimate_robot"],
+    )
+    x = task.sample_x0(np.random.default_rng(0))
+    u, info = mpc.act(x, task.tau_nominal)
+    assert np.all(np.isfinite(u)) and info.source == "solver"
+    if shipped["estimate_robot"]:
+        np.testing.assert_array_equal(mpc.estimate(), task.theta)  # no transition seen yet: the model's robot
