@@ -271,9 +271,8 @@ def run_task(
             if candidate is None:
                 continue
             # the declared box's rows are the ones above (the shipped seed's, the baselines')
-            key = (
-                (f"robust-seed{chosen['seed']}" if name == "robust" else name) if scale == 1.0 else f"{name}-x{scale:g}"
-            )
+            own = f"robust-seed{chosen['seed']}" if name == "robust" else name
+            key = own if scale == 1.0 else f"{own}-x{scale:g}"
             entry[name] = score(candidate, key, robots_s)["success_rate"]
         sweep[f"{scale:g}"] = entry
     n_est = min(bench.estimator_episodes, bench.starts)
@@ -303,7 +302,7 @@ def run_task(
         "estimator": estimator,
         "robot_seed": ROBOT_SEED,
         "quadratic_horizon": bench.quadratic_horizon,
-        "train_wall_s": round(train_s, 1),
+        "train_wall_s": None if networks else round(train_s, 1),
         "deployed": "LimitedLookaheadMPC(task, ValueNetwork.load(network), horizon=horizon, model_params=True, "
         "estimate_robot=True)",
     }
@@ -318,16 +317,17 @@ def plot(task_name: str, block: dict[str, Any], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     robust, shipped = block["robust"], block["shipped"]
-    fig, axes = plt.subplots(1, 3, figsize=(15, 4.2), constrained_layout=True)
+    fig, axes = plt.subplots(1, 3, figsize=(17, 4.6), constrained_layout=True)
     ax = axes[0]
     seeds = [r["success_rate"] for r in robust["per_seed"]]
-    names = ["robust MPC"] + [r["controller"] for r in robust["baselines"].values()]
+    names = [f"robust {shipped['horizon']}-step MPC"] + [r["controller"] for r in robust["baselines"].values()]
     values = [shipped["success_rate"]] + [r["success_rate"] for r in robust["baselines"].values()]
-    ax.bar(range(len(values)), values, color=["C0"] + ["C7"] * (len(values) - 1), alpha=0.8)
-    ax.plot(np.linspace(-0.15, 0.15, len(seeds)), seeds, "k.", ms=6)
-    ax.set_xticks(range(len(values)), [n.replace(" (", "\n(").replace(", ", ",\n") for n in names], fontsize=7)
-    ax.set_ylim(0, 1.05)
-    ax.set_ylabel(f"success, {shipped['starts']} starts x robots")
+    ys = np.arange(len(values))[::-1]
+    ax.barh(ys, values, color=["C0"] + ["C7"] * (len(values) - 1), alpha=0.8)
+    ax.plot(seeds, np.full(len(seeds), ys[0]) + np.linspace(-0.2, 0.2, len(seeds)), "k.", ms=6)
+    ax.set_yticks(ys, names, fontsize=7)
+    ax.set_xlim(0, 1.05)
+    ax.set_xlabel(f"success, {shipped['starts']} starts x robots (dots: seeds)")
     ax.set_title(f"{task_name}: robots from Theta ({shipped['budget']} solves, {shipped['seeds']} seeds)")
     bx = axes[1]
     scales = sorted(robust["box_sweep"], key=float)
@@ -401,10 +401,9 @@ def main(argv: list[str] | None = None) -> int:
         path = Path(args.update)
         merged = json.loads(path.read_text()) if path.is_file() else {}
         for task, blocks in result.items():
-            if task == "machine":
-                merged.setdefault("robust_machine", {}).update(blocks)
-            else:
+            if task != "machine":  # the file's top level is its tasks and the sampler run's machine
                 merged.setdefault(task, {}).update(blocks)
+                merged[task]["robust"]["machine"] = result["machine"]
         path.write_text(json.dumps(merged, indent=1) + "\n")
     print(json.dumps(result))
     return 0

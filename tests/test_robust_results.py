@@ -76,3 +76,18 @@ def test_the_shipped_network_deploys_as_the_block_says_and_plans_for_its_estimat
     assert np.all(np.isfinite(u)) and info.source == "solver"
     if shipped["estimate_robot"]:
         np.testing.assert_array_equal(mpc.estimate(), task.theta)  # no transition seen yet: the model's robot
+
+
+def test_the_benchmarks_settings_are_the_deployment_the_block_records():
+    import subprocess
+    import sys
+
+    script = ROOT / "benchmarks" / "bench_robust.py"
+    done = subprocess.run([sys.executable, str(script), "--dry-run"], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0, done.stderr
+    settings = json.loads(done.stdout.strip().splitlines()[-1])["acrobot"]
+    shipped = RESULT["acrobot"]["shipped"]
+    assert settings["horizon"] == shipped["horizon"]
+    assert settings["seeds"] == shipped["seeds"] and settings["starts"] == shipped["starts"]
+    assert settings["train"]["budget"] == shipped["budget"]
+    assert settings["recipe"] == RESULT["acrobot"]["robust"]["recipe"]
