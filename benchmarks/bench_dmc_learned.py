@@ -215,29 +215,13 @@ def controller(mpc: Any, tau_v: float, countdown: float = 0.0) -> Any:
 
 
 def score(mpc: Any, tau_v: float, seeds: list[int], hold: int, countdown: float = 0.0) -> dict[str, Any]:
-    """dm_control's scores of the MPC on ``seeds`` with the row's timing fields (as ``bench_dmc.score_row``)."""
-    from seagul_control.dmc import make_dmc_env, run_dmc_episode
+    """dm_control's scores of the MPC on ``seeds`` with the row's timing fields (``bench_dmc.score_row``'s row
+    without its controller name)."""
+    from benchmarks.bench_dmc import score_row
 
-    env = make_dmc_env(ENV_ID)
-    scores, medians, p95s = [], [], []
-    try:
-        for seed in seeds:
-            episode = run_dmc_episode(ENV_ID, controller(mpc, tau_v, countdown), seed, hold=hold, env=env)
-            scores.append(round(float(episode.score), 3))
-            medians.append(episode.decision_ms_median)
-            p95s.append(episode.decision_ms_p95)
-            print(f"  seed {seed}: {episode.score:.0f} ({episode.decision_ms_median:.2f} ms)", file=sys.stderr)
-    finally:
-        env.close()
-    return {
-        "scores": scores,
-        "mean": round(float(np.mean(scores)), 3),
-        "std": round(float(np.std(scores)), 3),
-        "seeds": list(seeds),
-        "decision_ms_median": round(float(np.median(medians)), 4),
-        "decision_ms_p95": round(float(np.median(p95s)), 4),
-        "hold": hold,
-    }
+    row = score_row(ENV_ID, "learned MPC", lambda _seed: controller(mpc, tau_v, countdown), seeds, hold=hold)
+    row.pop("controller")
+    return row
 
 
 def load_network(path: Path) -> Any:
