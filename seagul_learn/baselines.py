@@ -236,6 +236,15 @@ def _make_model(config: SB3Config, venv: Any) -> Any:
     )
 
 
+def quiet_logger(model: Any) -> None:
+    """Give ``model`` a logger that writes nothing. With ``verbose=0`` and no tensorboard folder, SB3's
+    ``learn()`` otherwise configures its default logger, which creates an empty ``SB3-<date>`` folder in the
+    system's temporary directory on every call."""
+    from stable_baselines3.common.logger import Logger
+
+    model.set_logger(Logger(folder=None, output_formats=[]))
+
+
 def _better(row: dict[str, Any], best: dict[str, Any] | None) -> bool:
     """Whether a curve point beats the best so far: higher validation success, ties by the lower median miss."""
     if best is None:
@@ -331,6 +340,7 @@ def train_sb3(
     total = int(settings["n_timesteps"])
     if previous is not None:
         model.set_random_seed(config.seed + int(model.num_timesteps))  # a fresh, reproducible stream per extension
+    quiet_logger(model)
     model.learn(
         total_timesteps=total - int(model.num_timesteps),
         callback=Curve(),

@@ -41,6 +41,7 @@ import yaml  # type: ignore[import-untyped]
 
 from seagul_control.dmc import dmc_env_id, make_dmc_env, run_dmc_episode, run_dmc_episodes
 from seagul_control.io import atomic_write_json
+from seagul_learn.baselines import quiet_logger
 
 __all__ = [
     "ALGOS",
@@ -372,6 +373,7 @@ def train_dmc_sb3(
                 self.next_point += every
             return True
 
+    quiet_logger(model)
     try:
         if int(model.num_timesteps) < steps:
             model.learn(
@@ -431,6 +433,7 @@ def measure_throughput(algo: str, env_id: str, seconds: float, seed: int = 0) ->
                 marks["learn0"] = time.perf_counter()
             return time.perf_counter() - marks["t0"] < seconds
 
+    quiet_logger(model)
     model.learn(total_timesteps=int(resolved["n_timesteps"]), callback=Stop())
     wall = time.perf_counter() - marks["t0"]
     steps = int(model.num_timesteps)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import tempfile
 from dataclasses import fields, replace
 from pathlib import Path
 
@@ -123,10 +124,16 @@ def test_validation_starts_are_neither_the_grid_nor_the_heldout_starts():
         assert distances.min() > 1e-6
 
 
-def test_tiny_run_selects_on_validation_and_its_saved_policy_acts_on_the_raw_env(tmp_path):
+def test_tiny_run_selects_on_validation_and_its_saved_policy_acts_on_the_raw_env(tmp_path, monkeypatch):
     config = smoke_config(SB3Config(algo="PPO", seed=3))
     seen: list[dict] = []
-    summary = train_sb3(config, tmp_path, on_point=seen.append)
+    scratch = tmp_path / "system-tmp"
+    scratch.mkdir()
+    monkeypatch.setattr(tempfile, "tempdir", str(scratch))
+    summary = train_sb3(config, tmp_path / "run", on_point=seen.append)
+    # SB3's default logger would leave an empty SB3-<date> folder here on every learn()
+    assert [p.name for p in scratch.iterdir() if p.name.startswith("SB3-")] == []
+    tmp_path = tmp_path / "run"
     assert len(seen) >= 2 and not (tmp_path / "curve.partial.json").exists()
     for name in ("model.zip", "vecnormalize.pkl", "view.json"):
         assert (tmp_path / name).is_file() and (tmp_path / "best" / name).is_file()
