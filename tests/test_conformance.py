@@ -616,9 +616,16 @@ def test_solve_many_is_bit_identical_for_one_and_two_workers(label: str) -> None
     assert not one.success or (np.isfinite(one.grad_x).all() and np.isfinite(one.grad_tau))
 
 
+RAY_ELSEWHERE = frozenset({"acrobot", "glider"})
+"""Built-in tasks whose Ray results are compared with the local backend's in ``tests/test_ray.py``
+(``test_ray_backend_equals_local_backend``, five solves each with the tasks' own solver plans): here the custom
+tasks, whose modules Ray must send by value."""
+
+
 @pytest.mark.ray
 def test_solve_many_on_ray_equals_the_local_backend() -> None:
-    """Every task of the battery in one private Ray session (starting Ray costs more than the solves)."""
+    """Every task of the battery but ``NEAR_GOAL`` and ``RAY_ELSEWHERE`` in one private Ray session (starting Ray
+    costs more than the solves)."""
     ray = pytest.importorskip("ray")
     import os
 
@@ -634,6 +641,8 @@ def test_solve_many_on_ray_equals_the_local_backend() -> None:
     try:
         for label, factory in TASKS.items():
             if label in NEAR_GOAL:  # see NEAR_GOAL: the backends' contract does not depend on the task
+                continue
+            if label in RAY_ELSEWHERE:
                 continue
             task = factory()
             starts, taus = _batch(task)

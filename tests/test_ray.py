@@ -66,6 +66,12 @@ def local_ray() -> Any:
     return ray
 
 
+FAST: dict[str, Any] = {"codegen": False, "horizon": 10, "plan": ("ipopt:line",), "multi_start": "never"}
+"""The robots' and the fault tests' solves: one interpreted IPOPT attempt on the acrobot's 1 s tail (10 intervals),
+~50 ms each and nothing compiled, so a restarted actor is back within its process start; what is tested is the
+plumbing (each start's robot, the pool's recovery), not the swing-up."""
+
+
 def _acrobot_starts(n: int) -> np.ndarray:
     return make_task("acrobot").sample_x0(np.random.default_rng(0), n)
 
@@ -87,10 +93,14 @@ def test_ray_solves_each_start_for_its_robot_like_the_local_backend(local_ray: A
     rng = np.random.default_rng(2)
     starts = task.sample_x0(rng, 3)
     thetas = task.parameters.sample(rng, 3)
-    options = {"codegen": False, "multi_start": "never"}
-    local = solve_many(task, starts, thetas=thetas, workers=1, progress=False, solver_options=options)
-    remote = solve_many(task, starts, thetas=thetas, workers=2, backend="ray", progress=False, solver_options=options)
+    taus = np.full(3, 1.0)  # FAST's 1 s tails: the robots' plumbing is tested, not the swing-up
+    local = solve_many(task, starts, taus, thetas=thetas, workers=1, progress=False, solver_options=FAST)
+    remote = solve_many(
+        task, starts, taus, thetas=thetas, workers=2, backend="ray", progress=False, solver_options=FAST
+    )
     assert_same_results(local, remote)
+    nominal = solve_many(task, starts[:1], taus[:1], workers=1, progress=False, solver_options=FAST)[0]
+    assert local[0].success and nominal.success and abs(local[0].value - nominal.value) > 1e-6  # theta was used
     for a, b, theta in zip(local, remote, thetas, strict=True):
         np.testing.assert_array_equal(b.theta, theta)
         np.testing.assert_array_equal(a.knot_grad_theta, b.knot_grad_theta)
@@ -103,11 +113,6 @@ def _arm(faults: dict[int, int]) -> None:
 
 def _pids() -> list[int]:
     return ray.get([a.pid.remote() for a in parallel._RAY_POOL.actors])
-
-
-FAST: dict[str, Any] = {"codegen": False, "horizon": 10, "plan": ("ipopt:line",), "multi_start": "never"}
-"""The fault tests' solves: one interpreted IPOPT attempt on the acrobot's 1 s tail (10 intervals), ~50 ms each and
-nothing compiled, so a restarted actor is back within its process start; what is tested is the pool's recovery."""
 
 
 def _fast(starts: np.ndarray, workers: int, backend: str = "ray") -> list[SolveResult]:
