@@ -7,8 +7,9 @@ Usage::
         [--quick] [--dry-run]
 
 Per task, ``--seeds`` networks are trained with the task's recipe ``RobustBenchConfig.recipe``
-(``TrainConfig.recipe(task, recipe, seed=s)``; ``--recipe robust`` learns ``V(x, tau, theta)`` over robots, the
-default ``shipped`` is the nominal robot's recipe) and each is deployed as the shipped robust MPC::
+(``TrainConfig.recipe(task, recipe, seed=s)``, by default :data:`RECIPES`: the acrobot's ``shipped``, the nominal
+robot's recipe, and the glider's ``robust``, which learns ``V(x, tau, theta)`` over robots) and each is deployed as
+the shipped robust MPC::
 
     LimitedLookaheadMPC(task, ValueNetwork.load(network), horizon=H, model_params=True, estimate_robot=True)
 
@@ -71,6 +72,10 @@ from seagul_learn.experiment.runs import train_one  # noqa: E402
 from seagul_learn.shipped import shipped_network  # noqa: E402
 from seagul_learn.training import TrainConfig  # noqa: E402
 
+RECIPES = {"acrobot": "shipped", "glider": "robust"}
+"""Each task's recipe of the robust MPC's networks (``--recipe`` replaces it): the acrobot's nominal shipped recipe
+measured best over robots (its ``robust`` recipe over Theta did worse), the glider's nominal network does not carry
+over to other robots and its ``robust`` recipe learns over Theta."""
 SCALES = (0.5, 1.0, 2.0)
 """Box sizes of the sweep, as multiples of the declared Theta (:meth:`ParameterSpace.scaled`)."""
 NETWORKS = ROOT / "benchmarks" / "results" / "networks"
@@ -85,7 +90,7 @@ class RobustBenchConfig:
     starts: int = 50
     """Held-out X0 starts, each on its own robot from Theta (the first 30 are ``bench_param_adversary``'s)."""
     recipe: str = "shipped"
-    """The task's training recipe of the networks (``TrainConfig.recipe(task, recipe, seed=s)``)."""
+    """The task's training recipe of the networks (``TrainConfig.recipe(task, recipe, seed=s)``; :data:`RECIPES`)."""
     horizon: int = 10
     """Lookahead steps of the deployed robust MPC."""
     quadratic_horizon: int = 10
@@ -111,8 +116,11 @@ class RobustBenchConfig:
                 "refit.candidates": 0,
                 "runtime.progress": False,
             }
-            return cls(task=task, seeds=2, starts=3, estimator_episodes=2, horizon=3, train_overrides=small)
-        return cls(task=task)
+            return cls(
+                task=task, recipe=RECIPES.get(task, "shipped"), seeds=2, starts=3, estimator_episodes=2, horizon=3,
+                train_overrides=small,
+            )
+        return cls(task=task, recipe=RECIPES.get(task, "shipped"))
 
 
 def robust_spec(network: str | Path, horizon: int, label: str = "robust MPC") -> PolicySpec:
@@ -361,7 +369,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--tasks", default="acrobot", help="comma-separated tasks")
     parser.add_argument("--seeds", type=int, default=None)
     parser.add_argument("--starts", type=int, default=None)
-    parser.add_argument("--recipe", default=None, help="the networks' training recipe (default: shipped)")
+    parser.add_argument("--recipe", default=None, help="the networks' training recipe (default: RECIPES[task])")
     parser.add_argument("--horizon", type=int, default=None, help="the robust MPC's lookahead steps (default 10)")
     parser.add_argument("--workers", type=int, default=2)
     parser.add_argument("--out", default=None, help="work directory (default /tmp/seagul-bench-robust)")

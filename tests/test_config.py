@@ -211,6 +211,19 @@ def test_the_acrobot_shipped_recipe_written_out():
     )
 
 
+def test_the_robust_recipes_are_the_default_ones_over_robots_within_3000_solves():
+    """The glider's ``robust`` recipe is its default closed-loop recipe learning over Theta, with the budget raised
+    to 3,000 solves (half of them uniform over ``X0 x Theta``); the acrobot's is its default over robots."""
+    for task in ("acrobot", "glider"):
+        robust = TrainConfig.recipe(task, "robust", seed=2)
+        assert robust.model_params and robust.budget <= 3000 and robust.seed == 2
+    over_robots = {"model_params": True, "runtime.progress": False}
+    glider = {"budget": 3000, "sampler.uniform_solves": 1500, "runtime.snapshots": (1500, 3000)}
+    assert TrainConfig.recipe("glider", "robust") == TrainConfig.recipe("glider").replaced(**over_robots, **glider)
+    acrobot = {"budget": 2000, "refit.candidates": 0, "runtime.snapshots": (1000, 2000)}
+    assert TrainConfig.recipe("acrobot", "robust") == TrainConfig.recipe("acrobot").replaced(**over_robots, **acrobot)
+
+
 def test_recipes_overrides_and_other_samplers():
     assert TrainConfig.recipe("acrobot", "paper") == TrainConfig(task="acrobot")
     mixed = TrainConfig.recipe("acrobot", budget=1500, network=NetworkConfig(hidden=(32,)))

@@ -79,15 +79,22 @@ def test_the_shipped_network_deploys_as_the_block_says_and_plans_for_its_estimat
 
 
 def test_the_benchmarks_settings_are_the_deployment_the_block_records():
+    """``bench_robust.py --dry-run``: each task's settings, its recipe's training config included, are the ones its
+    block was measured with."""
     import subprocess
     import sys
 
     script = ROOT / "benchmarks" / "bench_robust.py"
-    done = subprocess.run([sys.executable, str(script), "--dry-run"], capture_output=True, text=True, timeout=300)
+    tasks = ",".join(TASKS)
+    done = subprocess.run(
+        [sys.executable, str(script), "--tasks", tasks, "--dry-run"], capture_output=True, text=True, timeout=300
+    )
     assert done.returncode == 0, done.stderr
-    settings = json.loads(done.stdout.strip().splitlines()[-1])["acrobot"]
-    shipped = RESULT["acrobot"]["shipped"]
-    assert settings["horizon"] == shipped["horizon"]
-    assert settings["seeds"] == shipped["seeds"] and settings["starts"] == shipped["starts"]
-    assert settings["train"]["budget"] == shipped["budget"]
-    assert settings["recipe"] == RESULT["acrobot"]["robust"]["recipe"]
+    every = json.loads(done.stdout.strip().splitlines()[-1])
+    for task in TASKS:
+        settings, shipped, robust = every[task], RESULT[task]["shipped"], RESULT[task]["robust"]
+        assert settings["horizon"] == shipped["horizon"], task
+        assert settings["seeds"] == shipped["seeds"] and settings["starts"] == shipped["starts"], task
+        assert settings["train"]["budget"] == shipped["budget"], task
+        assert settings["recipe"] == robust["recipe"], task
+        assert settings["train"] == robust["train_settings"], task
