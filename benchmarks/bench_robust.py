@@ -171,7 +171,8 @@ def estimator_trace(task_name: str, spec: PolicySpec, starts: np.ndarray, robots
         "final_error_median_per_parameter": dict(
             zip(space.names, np.median([e[-1] for e in errors], axis=0).tolist(), strict=True)
         ),
-        "steps_to_5pct_median": float(np.median([_first_below(w, 0.05) for w in worst])),
+        # None: in the median episode the worst parameter never stays within 5 % of its width (JSON has no inf)
+        "steps_to_5pct_median": _finite(float(np.median([_first_below(w, 0.05) for w in worst]))),
         "step_ms_median": float(np.median(step_ms)),
         "step_ms_p95": float(np.percentile(step_ms, 95)),
     }
@@ -181,6 +182,10 @@ def _relative(path: Path) -> str:
     """``path`` relative to the repository when inside it."""
     path = path.resolve()
     return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
+
+
+def _finite(value: float) -> float | None:
+    return value if np.isfinite(value) else None
 
 
 def _first_below(trace: np.ndarray, level: float) -> float:

@@ -774,6 +774,20 @@ def section_dmc() -> str:
     return "\n".join(out)
 
 
+def estimate_sentence(est: Mapping[str, Any]) -> str:
+    """The online estimate's accuracy and cost from a ``robust.estimator`` block."""
+    steps = est["steps_to_5pct_median"]  # None: never within 5 % for good in the median episode
+    within = (f"falls below 5 % of its box width after {steps:g} steps" if steps is not None
+              else "does not stay below 5 % of its box width")
+    final = ", ".join(f"`{k}` {pct(v)}" for k, v in est["final_error_median_per_parameter"].items())
+    return (
+        f"The online estimate ({est['episodes']} episodes of the shipped robust MPC): the worst parameter's error "
+        f"{within} (median episode); it is {pct(est['max_error_median'][0])} of the width at the first step and "
+        f"{pct(est['max_error_median'][-1])} at the last (median), each parameter's at the end {final}. A step "
+        f"(estimate and solve) takes {ms(est['step_ms_median'])} / {ms(est['step_ms_p95'])} ms (median / p95)."
+    )
+
+
 def shipped_robust_section(task: str) -> list[str]:
     """One task's shipped robust MPC: the table, the box sweep, the estimate and the figure."""
     b = load("param_adversary.json")[task]
@@ -795,11 +809,7 @@ def shipped_robust_section(task: str) -> list[str]:
               [[f"{k}x", pct(v.get("robust")), pct(v.get("nominal")), pct(v.get("oracle"))]
                for k, v in sorted(sweep.items(), key=lambda kv: float(kv[0]))]),
         "",
-        f"The online estimate ({est['episodes']} episodes of the shipped robust MPC): the worst parameter's "
-        f"error falls below 5 % of its box width after {est['steps_to_5pct_median']:g} steps (median); "
-        f"at the first step it is {pct(est['max_error_median'][0])}, at the last "
-        f"{pct(est['max_error_median'][-1])} of the width (median). A step (estimate and solve) takes "
-        f"{ms(est['step_ms_median'])} / {ms(est['step_ms_p95'])} ms (median / p95).",
+        estimate_sentence(est),
         "",
         f"![robust MPC, box size and estimate](figures/results/robust_shipped_{task}.png)",
         "",
