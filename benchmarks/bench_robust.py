@@ -104,6 +104,7 @@ class RobustBenchConfig:
 
     @classmethod
     def for_task(cls, task: str, quick: bool) -> RobustBenchConfig:
+        recipe = RECIPES.get(task, "shipped")
         if quick:
             small: dict[str, Any] = {
                 "budget": 20,
@@ -117,10 +118,10 @@ class RobustBenchConfig:
                 "runtime.progress": False,
             }
             return cls(
-                task=task, recipe=RECIPES.get(task, "shipped"), seeds=2, starts=3, estimator_episodes=2, horizon=3,
+                task=task, recipe=recipe, seeds=2, starts=3, estimator_episodes=2, horizon=3,
                 train_overrides=small,
             )
-        return cls(task=task, recipe=RECIPES.get(task, "shipped"))
+        return cls(task=task, recipe=recipe)
 
 
 def robust_spec(network: str | Path, horizon: int, label: str = "robust MPC") -> PolicySpec:

@@ -428,7 +428,7 @@ def robust_rows(task: str) -> list[list[str]]:
 
 
 ROBUST_TIMES = (
-    "Step times are the solver's (an estimating MPC's update of its estimate adds about 3 ms late in an episode), "
+    "Step times are the solver's (without the estimate's update; the estimate's sentence gives whole steps), "
     "measured while other runs shared the machine: compare successes, not times."
 )
 ROBUST_HEADER = ["controller", "success", "of the oracle's", "step ms (median / p95)"]
@@ -455,8 +455,8 @@ def readme_robust() -> str:
     for task in robust_tasks():
         shipped, base = data[task]["shipped"], data[task]["robust"]["baselines"]
         keep = {base["adaptive-quadratic"]["controller"], base["oracle"]["controller"]}
-        first, *others = robust_rows(task)  # the shipped robust MPC, then the baselines
-        rows += [[f"{task}: {r[0]}", r[1], r[2]] for r in (first, *others) if r is first or r[0] in keep]
+        # the shipped robust MPC (the first row), then the kept baselines
+        rows += [[f"{task}: {r[0]}", r[1], r[2]] for i, r in enumerate(robust_rows(task)) if i == 0 or r[0] in keep]
         boxes.append(f"{task}: {ROBUST_BOXES[task]}")
         nominal.append(f"{pct(shipped['nominal_success_rate'])} ({task})")
     first_task = data[robust_tasks()[0]]["shipped"]
@@ -1043,8 +1043,7 @@ def draw_figures() -> list[Path]:
         plot_horizon_sweep(task, base[task]["rows"], path)
         drawn.append(path)
     path = FIGURES / "robust_acrobot.png"
-    robust = load("param_adversary.json")["acrobot"]
-    bench_param_adversary.plot(robust, path, "acrobot")
+    bench_param_adversary.plot(load("param_adversary.json")["acrobot"], path, "acrobot")
     drawn.append(path)
     for task in robust_tasks():
         path = FIGURES / f"robust_shipped_{task}.png"
