@@ -340,8 +340,10 @@ def _ray_init(ray: Any, workers: int, address: str | None) -> None:
         ray.init(address=address, runtime_env=env, ignore_reinit_error=True, log_to_driver=False)
     else:
         # Room for a later, larger call to grow the pool up to this machine's cores (or ``workers`` if more).
+        # ``address="local"``: a private instance even when another Ray runs on this machine (``ray.init()`` without
+        # an address would join the latest one in /tmp/ray/ray_current_cluster, and refuses ``num_cpus`` there).
         cpus = max(workers, os.cpu_count() or 1)
-        ray.init(num_cpus=cpus, runtime_env=env, ignore_reinit_error=True, log_to_driver=False)
+        ray.init(address="local", num_cpus=cpus, runtime_env=env, ignore_reinit_error=True, log_to_driver=False)
 
 
 def _ray_actors(ray: Any, n: int) -> list[Any]:

@@ -634,7 +634,7 @@ def test_solve_many_on_ray_equals_the_local_backend() -> None:
     if ray.is_initialized():
         ray.shutdown()
     address = os.environ.pop("RAY_ADDRESS", None)
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
     # The pendulum's parameter dataclass lives in this test module, which no Ray worker can import (a task loaded
     # with load_task from a file is sent by value by the library itself).
     ray.cloudpickle.register_pickle_by_value(sys.modules[__name__])

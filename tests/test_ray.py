@@ -61,7 +61,7 @@ def local_ray() -> Any:
     if ray.is_initialized() and ray.get_runtime_context().gcs_address != _LOCAL_GCS.get("gcs"):
         ray.shutdown()
     if not ray.is_initialized():
-        ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+        ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
         _LOCAL_GCS["gcs"] = ray.get_runtime_context().gcs_address
     return ray
 
@@ -311,6 +311,12 @@ def test_two_node_cluster_spreads_the_pool_over_both_nodes() -> None:
         again = solve_many("acrobot", starts, workers=2, backend="ray", progress=False)
         assert parallel._RAY_POOL.created == created + 2
         assert_same_results(local, again)
+        # Without an address the backend starts its own Ray, even with this cluster the latest on the machine
+        # (plain ``ray.init(num_cpus=...)`` would try to join it and refuse the CPU count).
+        parallel.shutdown_ray_pool()
+        ray.shutdown()
+        parallel._ray_init(ray, 1, None)
+        assert ray.get_runtime_context().gcs_address != cluster.address
     finally:
         parallel.shutdown_ray_pool()
         ray.shutdown()

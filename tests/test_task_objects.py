@@ -334,7 +334,7 @@ def private_ray() -> Iterator[Any]:
     if ray.is_initialized():
         ray.shutdown()
     address = os.environ.pop("RAY_ADDRESS", None)
-    ray.init(num_cpus=2, include_dashboard=False, log_to_driver=False)
+    ray.init(address="local", num_cpus=2, include_dashboard=False, log_to_driver=False)
     try:
         yield ray
     finally:
