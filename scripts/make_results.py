@@ -771,7 +771,30 @@ def section_dmc() -> str:
                 "each number's source and budget in environment steps):",
                 "",
                 table(["task", "method", "score", "env steps", "observations", "seeds", "source"], prow)]
+    out += dmc_animations()
     return "\n".join(out)
+
+
+def dmc_animations() -> list[str]:
+    """The suite animations (``docs/figures/dmc/*.gif``, drawn by ``benchmarks/animate_dmc.py``), captioned from the
+    ``animations.json`` it writes beside them (reset seed, each panel's controller and score)."""
+    index = ROOT / "docs" / "figures" / "dmc" / "animations.json"
+    if not index.is_file():
+        return []
+    shown = json.loads(index.read_text())
+    out = ["", "### The controllers from one start", "",
+           "Each animation replays dm_control's own episodes from one reset seed, the evaluation seed whose start is "
+           "farthest from upright, drawn by MuJoCo's renderer from the recorded physics states; each panel's score "
+           "is that controller's committed score on this seed. SAC and PPO join once their runs are committed. "
+           "Command: `python benchmarks/animate_dmc.py`."]
+    for task in DMC_TASKS:
+        if task not in shown:
+            continue
+        a = shown[task]
+        scores = "; ".join(f"{p['controller']} {p['score']:.0f}" for p in a["panels"])
+        out += ["", f"![{task}, reset seed {a['seed']}](figures/dmc/{a['file']})", "",
+                f"*{task}, reset seed {a['seed']}: {scores}.*"]
+    return out
 
 
 def estimate_sentence(est: Mapping[str, Any]) -> str:
