@@ -50,6 +50,7 @@ __all__ = [
     "HorizonEndTerminates",
     "LearnerReward",
     "LearnerView",
+    "RandomRobot",
     "learner_env",
 ]
 
@@ -239,6 +240,42 @@ class HorizonEndTerminates(gym.Wrapper):
     def step(self, action: Any) -> tuple[Any, SupportsFloat, bool, bool, dict[str, Any]]:
         obs, reward, terminated, truncated, info = self.env.step(action)
         return obs, reward, bool(terminated or truncated), False, info
+
+
+class RandomRobot(gym.Wrapper):
+    """Domain randomisation: every episode simulates its own robot, drawn uniformly from the task's box ``Theta``
+    (``Task.parameters``) with the env's own random stream (seeded by ``reset(seed=...)``), so a policy trained
+    through this wrapper meets the spread of robots it will be evaluated on (Tobin et al., "Domain Randomization
+    for Transferring Deep Neural Networks from Simulation to the Real World", IROS 2017; Peng et al., "Sim-to-Real
+    Transfer of Robotic Control with Dynamics Randomization", ICRA 2018).
+
+    The policy does not see the robot: the observation is unchanged. A reset whose ``options`` name ``"params"``
+    keeps that robot (an evaluation over given robots). ``scale`` widens or narrows the box about the model's values
+    (``ParameterSpace.scaled``). ``info["params"]`` after a reset holds the episode's robot.
+
+    Raises ``ValueError`` when the env's task declares no parameters.
+    """
+
+    def __init__(self, env: gym.Env, scale: float = 1.0) -> None:
+        super().__init__(env)
+        task = getattr(env.unwrapped, "model_task", None)
+        space = None if task is None else task.parameters
+        if task is None or space is None:
+            name = getattr(task, "name", type(env.unwrapped).__name__)
+            raise ValueError(f"RandomRobot: {name} declares no physical parameters (Task.parameters) to randomise")
+        if not (math.isfinite(scale) and scale > 0):
+            raise ValueError(f"RandomRobot: scale must be a finite number > 0, got {scale!r}")
+        self.space = space if scale == 1.0 else space.scaled(scale, task.theta)
+
+    def reset(self, *, seed: int | None = None, options: dict[str, Any] | None = None) -> tuple[Any, dict[str, Any]]:
+        if seed is not None:
+            self.env.reset(seed=seed)  # seed the env's stream before drawing this episode's robot from it
+        options = dict(options or {})
+        if "params" not in options:
+            options["params"] = self.space.sample(self.env.unwrapped.np_random)
+        obs, info = self.env.reset(options=options)
+        info["params"] = np.asarray(options["params"], dtype=float)
+        return obs, info
 
 
 def learner_env(env: gym.Env, view: LearnerView) -> gym.Env:

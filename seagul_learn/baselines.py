@@ -42,7 +42,7 @@ from tyro.constructors import PrimitiveConstructorSpec
 import seagul_envs  # noqa: F401  (registers the envs)
 from seagul_control.evaluation import run_policy_episode
 from seagul_control.io import atomic_write_json
-from seagul_envs.wrappers import LearnerView, learner_env
+from seagul_envs.wrappers import LearnerView, RandomRobot, learner_env
 from seagul_learn.commands._json import JsonObject
 
 ALGOS = ("PPO", "SAC")
@@ -101,6 +101,11 @@ class SB3Config:
     """Environment steps between two validation points of the learning curve (0: the tuned entry's)."""
     n_validation: int = 50
     """Validation starts (checkpoint selection and the learning curve)."""
+    domain_randomization: bool = False
+    """Train on robots drawn from the task's box Theta, one per episode (:class:`~seagul_envs.wrappers.RandomRobot`:
+    the policy does not see the robot); each validation start is then flown on its own robot from Theta
+    (:func:`validation_robots`). The tuned entry is the env's own: randomisation changes the data, not the
+    algorithm's settings."""
     progress: bool = False
     """Show SB3's progress bar."""
 
@@ -146,6 +151,14 @@ def validation_starts(task: Any, n: int = 50) -> np.ndarray:
     return np.asarray(task.sample_x0(np.random.default_rng(VALIDATION_SEED), int(n)))
 
 
+def validation_robots(task: Any, n: int = 50) -> np.ndarray:
+    """``n`` robots drawn uniformly from the task's box Theta with stream ``VALIDATION_SEED + 1``: the robots of the
+    validation starts when a run trains over robots (``SB3Config.domain_randomization``), never the evaluation's."""
+    if task.parameters is None:
+        raise ValueError(f"{task.name} declares no physical parameters (Task.parameters): no robots to validate on")
+    return np.asarray(task.parameters.sample(np.random.default_rng(VALIDATION_SEED + 1), int(n)))
+
+
 def learner_view(env_id: str, settings: dict[str, Any]) -> Any:
     """The :class:`~seagul_envs.wrappers.LearnerView` of ``env_id`` with ``settings`` (a tuned ``learner_view``)."""
     env = gym.make(env_id)
@@ -179,11 +192,19 @@ class LivePolicy:
         return self.view.action(action), None
 
 
-def episode_stats(task: Any, policy: Any, starts: np.ndarray, env_id: str | None = None) -> dict[str, float]:
+def episode_stats(
+    task: Any, policy: Any, starts: np.ndarray, env_id: str | None = None, robots: np.ndarray | None = None
+) -> dict[str, float]:
     """Success rate (the task's rule), mean return (minus the task's trajectory cost), mean and median final
     distance ``||x(T) - x*||`` and mean and median miss of the success rule (``SuccessRule.violation`` of the final
-    state in units of its tolerances; 0 where it succeeds) of ``policy`` from ``starts``."""
-    results = [run_policy_episode(task, policy, x0, index=i, env_id=env_id)[0] for i, x0 in enumerate(starts)]
+    state in units of its tolerances; 0 where it succeeds) of ``policy`` from ``starts`` (each on its robot of
+    ``robots`` when given)."""
+    if robots is not None and len(robots) != len(starts):
+        raise ValueError(f"episode_stats: {len(robots)} robots for {len(starts)} starts")
+    results = [
+        run_policy_episode(task, policy, x0, index=i, env_id=env_id, robot=None if robots is None else robots[i])[0]
+        for i, x0 in enumerate(starts)
+    ]
     rule = task.profile.success
     misses = [float(rule.violation(task, np.asarray(r.final_state))) for r in results]
     distances = [r.final_distance for r in results]
@@ -197,6 +218,11 @@ def episode_stats(task: Any, policy: Any, starts: np.ndarray, env_id: str | None
     }
 
 
+def _randomised_learner_env(env: gym.Env, view: Any) -> gym.Env:
+    """``learner_env`` over :class:`~seagul_envs.wrappers.RandomRobot`: a robot from Theta per episode."""
+    return learner_env(RandomRobot(env), view)
+
+
 def training_env(config: SB3Config, view: Any) -> Any:
     """The vectorised env ``config`` trains in: ``n_envs`` seeded copies of ``env_id``, each ``Monitor``-ed (episode
     returns in the task's units), seen through ``learner_env(view)``, then ``VecNormalize`` on observations."""
@@ -204,12 +230,9 @@ def training_env(config: SB3Config, view: Any) -> Any:
     from stable_baselines3.common.vec_env import DummyVecEnv, VecNormalize
 
     settings = config.resolved()
+    wrapper = partial(_randomised_learner_env if config.domain_randomization else learner_env, view=view)
     venv: Any = make_vec_env(
-        config.env_id,
-        n_envs=int(settings["n_envs"]),
-        seed=config.seed,
-        vec_env_cls=DummyVecEnv,
-        wrapper_class=partial(learner_env, view=view),
+        config.env_id, n_envs=int(settings["n_envs"]), seed=config.seed, vec_env_cls=DummyVecEnv, wrapper_class=wrapper
     )
     if settings.get("normalize", True):
         venv = VecNormalize(venv, norm_obs=True, norm_reward=False, gamma=float(settings["gamma"]))
@@ -298,6 +321,7 @@ def train_sb3(
         venv = model.get_env()
     normalizer = venv if settings.get("normalize", True) else None
     starts = validation_starts(task, config.n_validation)
+    robots = validation_robots(task, config.n_validation) if config.domain_randomization else None
     live = LivePolicy(model, view, normalizer)
     curve: list[dict[str, Any]] = [] if previous is None else list(previous["curve"])
     state: dict[str, Any] = {
@@ -314,7 +338,7 @@ def train_sb3(
     def point() -> None:
         state["train"] += time.perf_counter() - state["since"]
         row: dict[str, Any] = {"env_steps": int(model.num_timesteps), "wall_s": round(state["train"], 1)}
-        row.update(episode_stats(task, live, starts))
+        row.update(episode_stats(task, live, starts, robots=robots))
         if _better(row, state["best"]):
             save_policy(model, normalizer, view, candidate)
             state["best"] = row
@@ -382,6 +406,7 @@ def extendable_run(config: SB3Config, out: str | Path) -> dict[str, Any] | None:
     stored = json.loads(path.read_text())
     mine = {k: v for k, v in config.to_dict().items() if k not in ("total_timesteps", "progress")}
     theirs = {k: v for k, v in stored.get("config", {}).items() if k not in ("total_timesteps", "progress")}
+    theirs.setdefault("domain_randomization", False)  # runs stored before the field existed
     if mine != theirs or int(stored.get("env_steps", 0)) >= int(config.resolved()["n_timesteps"]):
         return None
     return dict(stored)

@@ -261,3 +261,81 @@ def test_a_larger_budget_extends_a_completed_run_from_its_final_model(tmp_path):
     assert steps == sorted(steps) and len(set(steps)) == len(steps)
     assert second["train_wall_s"] >= first["train_wall_s"]
     assert not (tmp_path / "best.partial").exists() and (tmp_path / "best" / "model.zip").is_file()
+
+
+# ------------------------------------------------------------------------------------------ domain randomisation
+def test_random_robot_draws_each_episode_its_robot_from_theta_reproducibly():
+    from seagul_envs.wrappers import RandomRobot
+
+    def robots(seed: int, n: int = 6) -> np.ndarray:
+        env = RandomRobot(gym.make("SeagulGlider-v0"))
+        drawn = [env.reset(seed=seed)[1]["params"]]
+        drawn += [env.reset()[1]["params"] for _ in range(n - 1)]
+        # the simulated robot is the drawn one, and the observation does not carry it
+        np.testing.assert_array_equal(env.unwrapped.task.theta, drawn[-1])
+        assert env.observation_space == gym.make("SeagulGlider-v0").observation_space
+        return np.asarray(drawn)
+
+    task = make_task("glider")
+    space = task.parameters
+    first = robots(0)
+    assert np.all(first >= space.low) and np.all(first <= space.high)
+    assert len({tuple(r) for r in first}) == len(first)  # a new robot every episode
+    np.testing.assert_array_equal(first, robots(0))  # the reset seed fixes the sequence
+    assert not np.array_equal(first, robots(1))
+    env = RandomRobot(gym.make("SeagulGlider-v0"))
+    _, info = env.reset(seed=0, options={"params": task.theta})
+    np.testing.assert_array_equal(info["params"], task.theta)  # a given robot is kept
+    narrow = RandomRobot(gym.make("SeagulGlider-v0"), scale=0.5).space
+    assert np.all(narrow.high - narrow.low < space.high - space.low)
+
+
+def test_random_robot_refuses_a_task_without_parameters_and_a_bad_scale():
+    from seagul_envs import Task
+    from seagul_envs.envs.base import SeagulEnv
+    from seagul_envs.wrappers import RandomRobot
+
+    with pytest.raises(ValueError, match="scale"):
+        RandomRobot(gym.make("SeagulGlider-v0"), scale=0.0)
+    task = make_task("glider")
+    bare: Task = replace(task, parameters=None)
+    with pytest.raises(ValueError, match="declares no physical parameters"):
+        RandomRobot(SeagulEnv(bare))
+
+
+def test_a_domain_randomised_run_trains_over_robots_and_validates_on_robots(tmp_path, monkeypatch):
+    import seagul_learn.baselines as baselines
+
+    config = smoke_config(SB3Config(algo="PPO", env_id="SeagulGlider-v0", seed=2, domain_randomization=True))
+    seen_robots: list = []
+    original = baselines.episode_stats
+
+    def spy(task, policy, starts, env_id=None, robots=None):
+        seen_robots.append(robots)
+        return original(task, policy, starts, env_id=env_id, robots=robots)
+
+    monkeypatch.setattr(baselines, "episode_stats", spy)
+    venv = baselines.training_env(config, learner_view(config.env_id, config.resolved()["learner_view"]))
+    venv.reset()
+    thetas = {tuple(e.unwrapped.task.theta) for e in venv.venv.envs}
+    assert len(thetas) == len(venv.venv.envs)  # every training env flies its own robot
+    summary = train_sb3(config, tmp_path / "run")
+    task = task_of_env(config.env_id)
+    expected = baselines.validation_robots(task, config.n_validation)
+    assert seen_robots and all(np.array_equal(r, expected) for r in seen_robots)
+    assert summary["config"]["domain_randomization"] is True
+    # validation robots are their own stream: not the evaluation's robots
+    from benchmarks.bench_param_adversary import ROBOT_SEED
+
+    evaluation = task.parameters.sample(np.random.default_rng(ROBOT_SEED), config.n_validation)
+    assert np.abs(expected - evaluation).min() > 0
+
+
+def test_a_run_stored_before_domain_randomization_existed_still_extends(tmp_path):
+    config = smoke_config(SB3Config(algo="PPO", seed=4))
+    train_sb3(config, tmp_path)
+    stored = json.loads((tmp_path / "curve.json").read_text())
+    del stored["config"]["domain_randomization"]
+    (tmp_path / "curve.json").write_text(json.dumps(stored))
+    assert extendable_run(replace(config, total_timesteps=512), tmp_path) is not None
+    assert extendable_run(replace(config, total_timesteps=512, domain_randomization=True), tmp_path) is None
