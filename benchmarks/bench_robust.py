@@ -23,7 +23,11 @@ uniformly from the declared box Theta (``ROBOT_SEED``, the robots of ``bench_par
   terminal cost at ``quadratic_horizon`` steps (the horizon at which it succeeds on the nominal robot);
 * ``nominal``: the shipped nominal network's MPC as deployed (it plans with the model) and, as a control, the same
   network with the estimating MPC (``nominal-estimate``);
-* ``lqr``: the task's LQR on the model.
+* ``lqr``: the task's LQR on the model;
+* ``nominal-ppo``: the shipped PPO baseline (``benchmarks/results/models/<task>_ppo``, trained on the model's robot);
+* ``dr-ppo``: domain-randomised PPO (:data:`DR_RL`): ``--seeds`` runs, each on a robot from Theta per episode
+  (``SB3Config(domain_randomization=True)``), its checkpoint selected on validation starts x robots of their own
+  streams; success per seed and the median (:func:`dr_rows`).
 
 Also: success against the size of the box (robots drawn from ``Theta.scaled(s, nominal)`` for ``s`` in ``SCALES``:
 each side's ratio to the nominal value raised to ``s``) for the robust, the nominal and the oracle MPC; and the online
@@ -31,11 +35,12 @@ estimate's accuracy per step (its error as a fraction of each parameter's width 
 step's time (estimate update plus solve) in ``estimator_episodes`` episodes of the shipped robust MPC.
 
 The shipped network is the seed whose success is the median of the seeds' (the lower one of a tied pair), never the
-best: ``--ship`` copies it to ``benchmarks/results/networks/<task>_robust_<recipe>_b<budget>_seed<s>.pt`` (a
-network already committed there, given with ``--networks``, is shipped where it is). ``--update FILE``
-merges into FILE, per task, the ``"shipped"`` block (``network``, ``horizon``, ``estimate_robot``, ``success_rate``
-(median over seeds), ``oracle_success_rate``, ``nominal_success_rate``, ``budget``, ``seeds``, ``starts``) and the
-``"robust"`` block (per-seed rows, baselines, box sweep, estimator), keeping every other field of the file.
+best. ``--ship`` copies every seed's network to
+``benchmarks/results/networks/<task>_robust_<recipe>_b<budget>_seed<s>.pt`` and the rows name those files (a network
+already committed there, given with ``--networks``, stays where it is). ``--update FILE`` merges into FILE, per task,
+the ``"shipped"`` block (``network``, ``horizon``, ``estimate_robot``, ``success_rate`` (median over seeds),
+``oracle_success_rate``, ``nominal_success_rate``, ``budget``, ``seeds``, ``starts``) and the ``"robust"`` block
+(per-seed rows, baselines, box sweep, estimator), keeping every other field of the file.
 Every evaluation is cached as JSON under ``--out`` and training resumes from its checkpoints, so a re-run continues.
 The last line of stdout is the result as one JSON object.
 """
@@ -68,6 +73,7 @@ from seagul_control.evaluation import (  # noqa: E402
 )
 from seagul_control.policy_kinds import build_policy  # noqa: E402
 from seagul_envs import make_task  # noqa: E402
+from seagul_learn.baselines import SB3Config, smoke_config, train_sb3  # noqa: E402
 from seagul_learn.experiment.runs import train_one  # noqa: E402
 from seagul_learn.shipped import shipped_network  # noqa: E402
 from seagul_learn.training import TrainConfig  # noqa: E402
@@ -76,6 +82,14 @@ RECIPES = {"acrobot": "shipped", "glider": "robust"}
 """Each task's recipe of the robust MPC's networks (``--recipe`` replaces it): the acrobot's nominal shipped recipe
 measured best over robots (its ``robust`` recipe over Theta did worse), the glider's nominal network does not carry
 over to other robots and its ``robust`` recipe learns over Theta."""
+DR_RL: dict[str, dict[str, int]] = {"glider": {"PPO": 500_000}}
+"""Domain-randomised RL per task (``SB3Config(domain_randomization=True)``, the env's tuned entry): algorithm ->
+environment steps, the nominal runs' budgets (``bench_rl_baselines.FULL_STEPS``), where the nominal run learned the
+task: the glider's PPO perches from every start of the model's robot at 500 k steps. Not the acrobot, whose nominal
+PPO reaches 3.5 % of its grid after 8 M steps (below LQR), nor SAC, whose nominal runs stop at 20-40 k steps (1 M
+steps take about 3 h per seed on this CPU): randomising the robot makes the task harder, not easier."""
+ENV_IDS = {"acrobot": "SeagulAcrobot-v0", "glider": "SeagulGlider-v0"}
+MODELS = ROOT / "benchmarks" / "results" / "models"
 SCALES = (0.5, 1.0, 2.0)
 """Box sizes of the sweep, as multiples of the declared Theta (:meth:`ParameterSpace.scaled`)."""
 NETWORKS = ROOT / "benchmarks" / "results" / "networks"
@@ -98,6 +112,23 @@ class RobustBenchConfig:
     estimator_episodes: int = 20
     train_overrides: dict[str, Any] = field(default_factory=dict)
     """TrainConfig fields (dotted) replacing the recipe's (``--quick``)."""
+    rl_steps: dict[str, int] = field(default_factory=dict)
+    """Domain-randomised RL baselines: algorithm -> environment steps (:data:`DR_RL`)."""
+    quick_rl: bool = False
+    """The RL runs at ``smoke_config``'s tiny sizes (``--quick``)."""
+
+    def rl_config(self, algo: str, seed: int) -> SB3Config:
+        config = SB3Config(
+            algo=algo,
+            env_id=ENV_IDS[self.task],
+            total_timesteps=self.rl_steps[algo],
+            seed=seed,
+            domain_randomization=True,
+        )
+        if self.quick_rl:
+            tiny = smoke_config(config).to_dict()
+            config = SB3Config(**{**tiny, "total_timesteps": self.rl_steps[algo], "eval_every": self.rl_steps[algo]})
+        return config
 
     def train_config(self, seed: int) -> TrainConfig:
         return TrainConfig.recipe(self.task, self.recipe, seed=seed, **self.train_overrides)
@@ -118,10 +149,17 @@ class RobustBenchConfig:
                 "runtime.progress": False,
             }
             return cls(
-                task=task, recipe=recipe, seeds=2, starts=3, estimator_episodes=2, horizon=3,
+                task=task,
+                recipe=recipe,
+                seeds=2,
+                starts=3,
+                estimator_episodes=2,
+                horizon=3,
                 train_overrides=small,
+                rl_steps={a: 256 for a in DR_RL.get(task, {})},
+                quick_rl=True,
             )
-        return cls(task=task, recipe=recipe)
+        return cls(task=task, recipe=recipe, rl_steps=dict(DR_RL.get(task, {})))
 
 
 def robust_spec(network: str | Path, horizon: int, label: str = "robust MPC") -> PolicySpec:
@@ -197,6 +235,75 @@ def _first_below(trace: np.ndarray, level: float) -> float:
     return float(above[-1] + 2) if above[-1] + 1 < trace.size else float("inf")
 
 
+def _train_dr_seed(config: SB3Config, run: str) -> None:
+    train_sb3(config, run)
+
+
+def train_dr(bench: RobustBenchConfig, out: Path, algo: str, workers: int) -> list[dict[str, Any]]:
+    """Each seed's domain-randomised ``algo`` run (``out/rl/<algo>_dr_seed<s>``), trained unless a completed run of
+    the same config is there; their ``curve.json`` summaries, in seed order."""
+    runs = {s: out / "rl" / f"{algo.lower()}_dr_seed{s}" for s in range(bench.seeds)}
+
+    def done(seed: int) -> bool:
+        path = runs[seed] / "curve.json"
+        return path.is_file() and json.loads(path.read_text())["config"] == bench.rl_config(algo, seed).to_dict()
+
+    todo = [s for s in runs if not done(s)]
+    Parallel(n_jobs=workers)(delayed(_train_dr_seed)(bench.rl_config(algo, s), str(runs[s])) for s in todo)
+    return [json.loads((runs[s] / "curve.json").read_text()) for s in runs]
+
+
+def _median_of(values: list[Any]) -> float | None:
+    finite = [float(v) for v in values if v is not None and np.isfinite(v)]
+    return float(np.median(finite)) if finite else None
+
+
+def dr_rows(bench: RobustBenchConfig, out: Path, workers: int, ship: bool, score: Any) -> dict[str, dict[str, Any]]:
+    """The domain-randomised RL baselines (``dr-<algo>``): each seed's model selected on its validation starts x
+    robots, flown on the benchmark's starts x robots; success is the median over seeds. The shipped model (``--ship``)
+    is the seed with the best validation point, as for the nominal RL baselines, copied to
+    ``benchmarks/results/models/<task>_<algo>_dr/``."""
+    rows: dict[str, dict[str, Any]] = {}
+    for algo, steps in bench.rl_steps.items():
+        runs = train_dr(bench, out, algo, workers)
+        label = f"domain-randomised {algo} ({steps:,} steps)"
+        per_seed = []
+        for summary in runs:
+            seed = int(summary["config"]["seed"])
+            spec = PolicySpec("sb3", label, summary["model"], (("algo", algo),))
+            result = score(spec, f"dr-{algo.lower()}-seed{seed}")
+            per_seed.append(
+                {
+                    "seed": seed,
+                    "success_rate": result["success_rate"],
+                    "selected_at": summary["best"]["env_steps"],
+                    "validation_success_rate": summary["best"]["success_rate"],
+                    "median_ms": result.get("median_ms"),
+                    "p95_ms": result.get("p95_ms"),
+                }
+            )
+        best = max(range(len(runs)), key=lambda i: (runs[i]["best"]["success_rate"], -runs[i]["best"]["median_miss"]))
+        model = Path(runs[best]["model"])
+        if ship:
+            target = MODELS / f"{bench.task}_{algo.lower()}_dr"
+            shutil.rmtree(target, ignore_errors=True)
+            shutil.copytree(model.parent, target)
+            model = target / "model.zip"
+        rows[f"dr-{algo.lower()}"] = {
+            "controller": label,
+            "success_rate": float(np.median([r["success_rate"] for r in per_seed])),
+            "median_ms": _median_of([r["median_ms"] for r in per_seed]),
+            "p95_ms": _median_of([r["p95_ms"] for r in per_seed]),
+            "per_seed": per_seed,
+            "env_steps": int(runs[0]["env_steps"]),
+            "seeds": len(runs),
+            "train_wall_s": float(np.median([r["train_wall_s"] for r in runs])),
+            "model": _relative(model),
+            "settings": runs[0]["resolved"],
+        }
+    return rows
+
+
 def run_task(
     bench: RobustBenchConfig, out: Path, workers: int, ship: bool, networks: list[Path] | None = None
 ) -> dict[str, Any]:
@@ -237,11 +344,15 @@ def run_task(
     rates = [r["success_rate"] for r in per_seed]
     order = sorted(range(len(rates)), key=lambda i: (rates[i], i))
     chosen = per_seed[order[(len(order) - 1) // 2]]
+    if ship:  # every seed's network is committed (a committed one where it is); the rows name the committed files
+        for row in per_seed:
+            path = runs[row["seed"]]
+            if path.resolve().parent != NETWORKS.resolve():
+                target = NETWORKS / f"{bench.task}_robust_{bench.recipe}_b{budget}_seed{row['seed']}.pt"
+                shutil.copyfile(path, target)
+                runs[row["seed"]] = target
+                row["network"] = _relative(target)
     network = runs[chosen["seed"]]
-    if ship and network.resolve().parent != NETWORKS.resolve():  # a committed network is shipped where it is
-        target = NETWORKS / f"{bench.task}_robust_{bench.recipe}_b{budget}_seed{chosen['seed']}.pt"
-        shutil.copyfile(network, target)
-        network = target
 
     nominal = shipped_network(task)
 
@@ -266,10 +377,16 @@ def run_task(
             str(nominal.network),
             (*nominal.options(), ("model_params", True), ("estimate_robot", True)),
         )
+    nominal_rl = MODELS / f"{bench.task}_ppo" / "model.zip"
+    if nominal_rl.is_file():  # the nominal RL baseline as shipped (trained on the model's robot)
+        baselines["nominal-ppo"] = PolicySpec(
+            "sb3", "shipped PPO (trained on the model)", str(nominal_rl), (("algo", "PPO"),)
+        )
     rows = {}
     for name, spec in baselines.items():
         result = score(spec, name)
         rows[name] = {"controller": spec.label, **{k: v for k, v in result.items() if k != "success"}}
+    rows.update(dr_rows(bench, out, workers, ship, score))
     shipped_spec = robust_spec(network, horizon)
     sweep: dict[str, dict[str, Any]] = {}
     swept: dict[str, PolicySpec | None] = {

@@ -397,7 +397,10 @@ def readme_block() -> str:
     ])
 
 
-ROBUST_ORDER = ("adaptive-quadratic", "adaptive-quadratic-N5", "nominal-estimate", "nominal", "lqr", "oracle")
+ROBUST_ORDER = (
+    "adaptive-quadratic", "adaptive-quadratic-N5", "nominal-estimate", "nominal", "dr-ppo", "nominal-ppo", "lqr",
+    "oracle",
+)
 """Rows of the robust table after the shipped robust MPC (``param_adversary.json``'s ``robust.baselines`` keys)."""
 
 
@@ -422,8 +425,11 @@ def robust_rows(task: str) -> list[list[str]]:
     baselines = robust["baselines"]
     for key in [k for k in ROBUST_ORDER if k in baselines] + [k for k in baselines if k not in ROBUST_ORDER]:
         row = baselines[key]
-        rows.append([row["controller"], pct(row["success_rate"]), of_oracle(row["success_rate"]),
-                     f"{ms(row['median_ms'])} / {ms(row['p95_ms'])}"])
+        label = row["controller"]
+        if "per_seed" in row:  # a baseline trained over seeds (domain-randomised RL): its median and each seed's
+            label += f"; seeds {', '.join(pct(r['success_rate']) for r in row['per_seed'])}"
+        rows.append([label, pct(row["success_rate"]), of_oracle(row["success_rate"]),
+                     f"{ms(row.get('median_ms'))} / {ms(row.get('p95_ms'))}"])
     return rows
 
 

@@ -98,3 +98,28 @@ def test_the_benchmarks_settings_are_the_deployment_the_block_records():
         assert settings["train"]["budget"] == shipped["budget"], task
         assert settings["recipe"] == robust["recipe"], task
         assert settings["train"] == robust["train_settings"], task
+
+
+def test_domain_randomised_rl_rows_train_once_select_on_validation_and_fly_the_benchmarks_robots(tmp_path, monkeypatch):
+    """``bench_robust``'s RL baselines: one run per seed over robots (reused when complete), each seed's selected
+    model flown by the benchmark's scorer, success the median over seeds."""
+    from benchmarks import bench_robust
+
+    bench = bench_robust.RobustBenchConfig.for_task("glider", quick=True)
+    assert bench.rl_steps == {"PPO": 256} and all(bench.rl_config("PPO", s).domain_randomization for s in (0, 1))
+    flown: list = []
+
+    def score(spec, name):
+        flown.append((spec, name))
+        return {"success_rate": 0.25 * len(flown)}
+
+    rows = bench_robust.dr_rows(bench, tmp_path, 1, False, score)
+    row = rows["dr-ppo"]
+    assert [name for _, name in flown] == ["dr-ppo-seed0", "dr-ppo-seed1"]
+    assert all(spec.kind == "sb3" and spec.path.endswith("best/model.zip") for spec, _ in flown)
+    assert row["success_rate"] == pytest.approx(np.median([0.25, 0.5])) and row["seeds"] == 2
+    assert row["env_steps"] >= 256 and [r["seed"] for r in row["per_seed"]] == [0, 1]
+    # completed runs of the same config are reused, not trained again
+    monkeypatch.setattr(bench_robust, "train_sb3", lambda *a, **k: pytest.fail("retrained a completed run"))
+    again = bench_robust.dr_rows(bench, tmp_path, 1, False, score)
+    assert again["dr-ppo"]["per_seed"][0]["selected_at"] == row["per_seed"][0]["selected_at"]
