@@ -460,9 +460,10 @@ def readme_robust() -> str:
     rows, boxes, nominal = [], [], []
     for task in robust_tasks():
         shipped, base = data[task]["shipped"], data[task]["robust"]["baselines"]
-        keep = {base["adaptive-quadratic"]["controller"], base["oracle"]["controller"]}
+        keep = {base[k]["controller"] for k in ("adaptive-quadratic", "dr-ppo", "oracle") if k in base}
         # the shipped robust MPC (the first row), then the kept baselines
-        rows += [[f"{task}: {r[0]}", r[1], r[2]] for i, r in enumerate(robust_rows(task)) if i == 0 or r[0] in keep]
+        rows += [[f"{task}: {r[0]}", r[1], r[2]] for i, r in enumerate(robust_rows(task))
+                 if i == 0 or r[0].split("; seeds")[0] in keep]
         boxes.append(f"{task}: {ROBUST_BOXES[task]}")
         nominal.append(f"{pct(shipped['nominal_success_rate'])} ({task})")
     first_task = data[robust_tasks()[0]]["shipped"]

@@ -98,6 +98,11 @@ def test_the_benchmarks_settings_are_the_deployment_the_block_records():
         assert settings["train"]["budget"] == shipped["budget"], task
         assert settings["recipe"] == robust["recipe"], task
         assert settings["train"] == robust["train_settings"], task
+        for algo, steps in settings["rl_steps"].items():  # the domain-randomised RL rows: budget and seeds
+            row = robust["baselines"][f"dr-{algo.lower()}"]
+            assert row["settings"]["n_timesteps"] == steps and row["seeds"] == settings["seeds"], task
+            assert row["success_rate"] == np.median([r["success_rate"] for r in row["per_seed"]]), task
+            assert (ROOT / row["model"]).is_file() and (ROOT / row["model"]).with_name("view.json").is_file(), task
 
 
 def test_domain_randomised_rl_rows_train_once_select_on_validation_and_fly_the_benchmarks_robots(tmp_path, monkeypatch):
