@@ -82,7 +82,10 @@ def test_ray_backend_equals_local_backend(local_ray: Any, task_name: str) -> Non
     starts = task.sample_x0(np.random.default_rng(1), 5)
     lo, hi = task.tau_range
     taus = np.linspace(lo, hi, 5)  # the glider's free final time over T0; the acrobot's T0 is one value
-    local = solve_many(task_name, starts, taus, workers=1, progress=False)
+    # The local backend's worker processes, like Ray's actors, start fresh with one BLAS thread; an in-process solve
+    # runs with whatever the calling process has loaded (here: the pytest worker after other test files), and near a
+    # tie between two attempts' values that can pick the other attempt.
+    local = solve_many(task_name, starts, taus, workers=2, progress=False)
     remote = solve_many(task_name, starts, taus, workers=2, backend="ray", progress=False)
     assert sum(r.success for r in local) >= 3
     assert_same_results(local, remote)
