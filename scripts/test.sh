@@ -7,6 +7,4 @@ bash scripts/setup.sh
 .venv/bin/python -m ruff check .
 .venv/bin/python -m mypy seagul_envs seagul_control seagul_learn
 NO_MKDOCS_2_WARNING=1 .venv/bin/python -m mkdocs build --strict --quiet --site-dir "$(mktemp -d)"
-# --dist loadfile: a test file's tests run on one worker, so a module fixture (the two-minute smoke run of
-# tests/test_experiment.py) is made once, not once per worker.
-exec .venv/bin/python -m pytest -n 2 --dist loadfile -q "$@"
+exec .venv/bin/python -m pytest -n 2 -q "$@"
