@@ -511,7 +511,8 @@ def readme_dmc() -> str:
     return "\n".join([
         "**DeepMind Control Suite swing-ups**, scored by dm_control's own reward on its own episodes (0 to 1000, "
         f"mean ± std over reset seeds {data['seeds'][0]}-{data['seeds'][-1]}; `benchmarks/results/dmc.json`, "
-        "[details](docs/results.md#deepmind-control-suite-swing-ups)). A dash is a run not made yet.",
+        "[details](docs/results.md#deepmind-control-suite-swing-ups), "
+        "[animations](docs/results.md#the-controllers-from-one-start)). A dash is a run not made yet.",
         "",
         table(["task", "learned MPC", "full-horizon reference", "classical swing-up", "SAC", "PPO", "best published"],
               rows),
