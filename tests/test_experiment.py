@@ -22,16 +22,31 @@ from seagul_learn.experiment import Experiment, ExperimentConfig
 
 @pytest.fixture(scope="module")
 def smoke_run(tmp_path_factory: pytest.TempPathFactory) -> tuple[Path, str]:
-    out = tmp_path_factory.mktemp("reproduce") / "run"
+    """The smoke preset's run, made once per test session and copied for this module: the xdist workers share one
+    build (under a file lock in the session's directory; a copied run resumes like the original, tested below), and
+    the tests that change a run change their own copy. Returns the copy and the run's stdout as if made there."""
     import contextlib
     import io
+    import shutil
 
-    stdout = io.StringIO()
-    with contextlib.redirect_stdout(stdout):
-        argv = ["reproduce", "acrobot", "--preset", "smoke", "--out", str(out), "--workers", "1", "--no-progress"]
-        code = main([*argv, "--envs", "SeagulAcrobotMujoco-v0"])
-    assert code == 0
-    return out, stdout.getvalue()
+    from filelock import FileLock
+
+    shared = tmp_path_factory.getbasetemp()
+    if os.environ.get("PYTEST_XDIST_WORKER"):
+        shared = shared.parent  # the session's directory, above each worker's own
+    built = shared / "smoke-reproduce"
+    with FileLock(str(shared / "smoke-reproduce.lock")):
+        if not (built / "stdout.txt").is_file():
+            shutil.rmtree(built, ignore_errors=True)
+            stdout = io.StringIO()
+            with contextlib.redirect_stdout(stdout):
+                argv = ["reproduce", "acrobot", "--preset", "smoke", "--out", str(built / "run"), "--workers", "1"]
+                code = main([*argv, "--no-progress", "--envs", "SeagulAcrobotMujoco-v0"])
+            assert code == 0
+            (built / "stdout.txt").write_text(stdout.getvalue())
+    out = tmp_path_factory.mktemp("reproduce") / "run"
+    shutil.copytree(built / "run", out)
+    return out, (built / "stdout.txt").read_text().replace(str(built / "run"), str(out))
 
 
 def test_reproduce_writes_report_with_figures_and_tables(smoke_run: tuple[Path, str]) -> None:
