@@ -111,9 +111,14 @@ def run_seed(config: SB3Config, out: Path, n_heldout: int = 100) -> dict[str, An
     return result
 
 
+def best_run(runs: list[dict[str, Any]]) -> int:
+    """The index of the run shipped among seeds: the best validation point (ties: the lower median miss)."""
+    return max(range(len(runs)), key=lambda i: (runs[i]["best"]["success_rate"], -runs[i]["best"]["median_miss"]))
+
+
 def summarise(task: str, algo: str, runs: list[dict[str, Any]], ship: bool) -> dict[str, Any]:
     """The block of one task and algorithm: medians over seeds, per-seed rows, curves, the shipped model."""
-    best = max(range(len(runs)), key=lambda i: (runs[i]["best"]["success_rate"], -runs[i]["best"]["median_miss"]))
+    best = best_run(runs)
     model = runs[best]["model"]
     if ship:
         target = SHIP_DIR / f"{task}_{algo.lower()}"

@@ -65,6 +65,7 @@ from joblib import Parallel, delayed  # noqa: E402
 
 from benchmarks._common import machine  # noqa: E402
 from benchmarks.bench_param_adversary import ROBOT_SEED, ParamBenchConfig, closed_loop  # noqa: E402
+from benchmarks.bench_rl_baselines import ENV_IDS, SHIP_DIR, best_run  # noqa: E402
 from seagul_control.evaluation import (  # noqa: E402
     PolicySpec,
     episode_env,
@@ -89,8 +90,6 @@ environment steps. The glider's PPO perches from every start of the model's robo
 0.34 at 500 k), so the runs get four times that. Not the acrobot, whose nominal PPO reaches 3.5 % of its grid after
 8 M steps (below LQR), nor SAC, whose nominal runs stop at 20-40 k steps (1 M steps take about 3 h per seed on this
 CPU): randomising the robot makes the task harder, not easier."""
-ENV_IDS = {"acrobot": "SeagulAcrobot-v0", "glider": "SeagulGlider-v0"}
-MODELS = ROOT / "benchmarks" / "results" / "models"
 SCALES = (0.5, 1.0, 2.0)
 """Box sizes of the sweep, as multiples of the declared Theta (:meth:`ParameterSpace.scaled`)."""
 NETWORKS = ROOT / "benchmarks" / "results" / "networks"
@@ -283,10 +282,9 @@ def dr_rows(bench: RobustBenchConfig, out: Path, workers: int, ship: bool, score
                     "p95_ms": result.get("p95_ms"),
                 }
             )
-        best = max(range(len(runs)), key=lambda i: (runs[i]["best"]["success_rate"], -runs[i]["best"]["median_miss"]))
-        model = Path(runs[best]["model"])
+        model = Path(runs[best_run(runs)]["model"])
         if ship:
-            target = MODELS / f"{bench.task}_{algo.lower()}_dr"
+            target = SHIP_DIR / f"{bench.task}_{algo.lower()}_dr"
             shutil.rmtree(target, ignore_errors=True)
             shutil.copytree(model.parent, target)
             model = target / "model.zip"
@@ -378,7 +376,7 @@ def run_task(
             str(nominal.network),
             (*nominal.options(), ("model_params", True), ("estimate_robot", True)),
         )
-    nominal_rl = MODELS / f"{bench.task}_ppo" / "model.zip"
+    nominal_rl = SHIP_DIR / f"{bench.task}_ppo" / "model.zip"
     if nominal_rl.is_file():  # the nominal RL baseline as shipped (trained on the model's robot)
         baselines["nominal-ppo"] = PolicySpec(
             "sb3", "shipped PPO (trained on the model)", str(nominal_rl), (("algo", "PPO"),)

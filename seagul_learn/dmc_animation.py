@@ -16,6 +16,7 @@ from __future__ import annotations
 import io
 from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from PIL import Image, ImageDraw
@@ -26,15 +27,16 @@ from seagul_control.io import atomic_write_bytes
 __all__ = ["dmc_animation"]
 
 
-def _frames(episode: DMCEpisode, physics: object, every: int, size: tuple[int, int], camera_id: int) -> list:
+def _frames(episode: DMCEpisode, physics: Any, every: int, size: tuple[int, int], camera_id: int) -> list[Image.Image]:
+    """Every ``every``-th recorded state of ``episode`` drawn by ``physics`` (a dm_control ``Physics``)."""
     states = np.asarray(episode.states, dtype=float)
-    nq = int(physics.model.nq)  # type: ignore[attr-defined]
+    nq = int(physics.model.nq)
     frames = []
     for k in range(0, len(states), every):
-        with physics.reset_context():  # type: ignore[attr-defined]
-            physics.data.qpos[:] = states[k, :nq]  # type: ignore[attr-defined]
-            physics.data.qvel[:] = states[k, nq:]  # type: ignore[attr-defined]
-        pixels = physics.render(height=size[1], width=size[0], camera_id=camera_id)  # type: ignore[attr-defined]
+        with physics.reset_context():
+            physics.data.qpos[:] = states[k, :nq]
+            physics.data.qvel[:] = states[k, nq:]
+        pixels = physics.render(height=size[1], width=size[0], camera_id=camera_id)
         frames.append(Image.fromarray(np.asarray(pixels, dtype=np.uint8)))
     return frames
 
