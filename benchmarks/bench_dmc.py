@@ -4,6 +4,7 @@ Usage::
 
     nice .venv/bin/python benchmarks/bench_dmc.py [--seeds 0-9] [--json benchmarks/results/dmc.json]
     nice .venv/bin/python benchmarks/bench_dmc.py --tune acrobot [--trials 200]   # how the defaults were chosen
+    .venv/bin/python benchmarks/bench_dmc.py --gather [--json benchmarks/results/dmc.json]
 
 Per env of :data:`seagul_control.dmc.DMC_ENV_IDS` (pendulum-swingup, cartpole-swingup, cartpole-swingup_sparse,
 acrobot-swingup) it runs, on the reset seeds ``--seeds`` (default 0-9, the evaluation seeds; the classical
@@ -40,6 +41,10 @@ The ``classical`` rows are run here; the other blocks are gathered from the resu
 came from: ``--trials`` draws from the task's search box (:data:`SEARCH`), each scored by its mean over the first
 10 tuning seeds; the best 5 are re-scored on all 40 tuning seeds and printed (one JSON object per line, best last).
 The evaluation seeds are never used by the search.
+
+``--gather`` re-reads the other benchmarks' result files into the existing ``--json`` file (its classical rows,
+seeds and command unchanged, ``gathered_by`` records the re-gathering), for when a learned MPC, reference or RL run
+has been added since the classical rows were measured.
 """
 
 from __future__ import annotations
@@ -261,7 +266,19 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--tune", choices=sorted(SEARCH), default=None, help="random search of a task's gains")
     parser.add_argument("--trials", type=int, default=200, help="--tune: parameter draws (default 200)")
     parser.add_argument("--tune-seed", type=int, default=0, help="--tune: the search's own RNG seed (default 0)")
+    parser.add_argument("--gather", action="store_true", help="re-gather the other result files into --json")
     args = parser.parse_args(argv)
+    if args.gather:
+        path = args.json or RESULTS / "dmc.json"
+        previous = json.loads(path.read_text())
+        classical = {previous[short_name(e)]["env_id"]: previous[short_name(e)]["classical"] for e in DMC_ENV_IDS}
+        previous.update(assemble(classical))
+        previous["gathered_by"] = "python benchmarks/bench_dmc.py " + " ".join(
+            argv if argv is not None else sys.argv[1:]
+        )
+        path.write_text(json.dumps(previous, indent=1) + "\n")
+        print(markdown(previous), file=sys.stderr)
+        return
     if args.tune:
         for row in tune(args.tune, args.trials, args.tune_seed):
             print(json.dumps(row))

@@ -1,12 +1,14 @@
-"""A learned short-horizon MPC on the DeepMind Control Suite's pendulum, scored by dm_control's own reward.
+"""A learned short-horizon MPC on the DeepMind Control Suite's pendulum and cart-pole, scored by dm_control's own
+reward.
 
 Usage::
 
-    nice -n 5 .venv/bin/python benchmarks/bench_dmc_learned.py train [--sampler uniform] [--budget 1500] [--seed 0]
-    nice -n 5 .venv/bin/python benchmarks/bench_dmc_learned.py tune NETWORK [--horizons 5 10] [--taus 2 5 8] \\
-        [--countdowns 0 10] [--seeds 100-119]
-    nice -n 5 .venv/bin/python benchmarks/bench_dmc_learned.py evaluate NETWORK... --solves B... [--horizon 5] \\
-        [--tau 5] [--seeds 0-9] [--tuning TUNE.jsonl...] [--tuned-on NETWORK] \\
+    nice -n 5 .venv/bin/python benchmarks/bench_dmc_learned.py train [--domain pendulum] [--sampler uniform] \\
+        [--budget 1500] [--seed 0]
+    nice -n 5 .venv/bin/python benchmarks/bench_dmc_learned.py tune NETWORK [--domain pendulum] [--horizons 5 10] \\
+        [--taus 2 5 8] [--dts 0.02] [--holds 1] [--countdowns 0 10] [--seeds 100-119]
+    nice -n 5 .venv/bin/python benchmarks/bench_dmc_learned.py evaluate NETWORK... --solves B... [--domain pendulum] \\
+        [--horizon 5] [--tau 5] [--dt 0.02] [--hold 1] [--seeds 0-9] [--tuning TUNE.jsonl...] [--tuned-on NETWORK] \\
         [--json benchmarks/results/dmc_learned.json]
     nice -n 5 .venv/bin/python benchmarks/bench_dmc_learned.py labels RUN_DIR
     nice -n 5 .venv/bin/python benchmarks/bench_dmc_learned.py guesses [--angles 0.3 0.8 1.2 1.8 2.4 3.0]
@@ -14,32 +16,51 @@ Usage::
 
 Measured results, the choices below and why: docs/experiments/dmc-learned.md.
 
-``train`` fits ``V(x, tau)`` of ``dmc_pendulum`` (:mod:`seagul_envs.tasks.dmc.pendulum`: cost ``1 - cos(hinge) +
-0.01 u^2``, 10 s to go, 100 intervals of 0.1 s) with the project's trainer (:func:`seagul_learn.training.train`,
-``TrainConfig(task=..., sampler=...)``) into ``/tmp/<network name>`` (:func:`run_dir`; with ``bench_train.json``, the
-run's wall time) and copies the network to ``benchmarks/results/networks/dmc_pendulum_<sampler>_b<budget>_seed<k>.pt``.
-The task's hinge angle is unbounded (the suite's pendulum spins), so the network is built over its periodic angle
-(``Task.periodic = (0,)``: the input ``(cos q, sin q)``); where the checkout's task does not yet declare it,
-:func:`pendulum_task` sets it with ``dataclasses.replace``.
+Each ``--domain`` (:data:`DOMAINS`) is one suite env with its training recipe and default deployment:
 
-The trajectory optimizer's attempts [choice]: ``hold`` (every knot at the start state), then ``line`` and ``goal``.
+* ``pendulum`` (``dm_control/pendulum-swingup-v0``): ``train`` fits ``V(x, tau)`` of ``dmc_pendulum``
+  (:mod:`seagul_envs.tasks.dmc.pendulum`: cost ``1 - cos(hinge) + 0.01 u^2``, 10 s to go, 100 intervals of 0.1 s)
+  from the task's own starts (the suite's: any hinge angle at rest), 2 x 64 network, 50 solves per round, one
+  worker;
+* ``cartpole`` (``dm_control/cartpole-swingup-v0``): ``V(x, tau)`` of ``dmc_cartpole`` (cost ``1 - r``, the
+  suite's smooth reward itself, 4 s to go, 80 intervals of 0.05 s) from starts drawn uniformly over a box of the
+  whole swing (``train_box``: slider +-1.2 m, hinge +-pi, slider velocity +-3 m/s, hinge velocity +-7 rad/s, what an
+  optimal swing-up from rest spans: the suite's own starts are a 0.03-wide box around hanging at rest and would
+  teach the value nothing about the swing), 2 x 128 network, 100 solves per round, two workers, the trajectory
+  optimizer's default plan;
+* ``cartpole_sparse`` (``dm_control/cartpole-swingup_sparse-v0``): the same task and the same networks (the
+  suite's sparse task has the same physics; only its reward differs), deployed and scored in the sparse env.
+
+Training uses the project's trainer (:func:`seagul_learn.training.train`, ``TrainConfig(task=..., sampler=...)``)
+into ``/tmp/<network name>`` (:func:`run_dir`; with ``bench_train.json``, the run's wall time) and copies the
+network to ``benchmarks/results/networks/<task>_<sampler>_b<budget>_seed<k>.pt``. Angles are periodic
+(``Task.periodic``): the network's input has ``(cos q, sin q)`` in their place.
+
+The pendulum's trajectory optimizer attempts [choice]: ``hold`` (every knot at the start state), then ``line`` and
+``goal``.
 From the task's default plan (``line``, ``goal``) IPOPT converged to a point of local infeasibility on 18 of 20
 random suite starts; ``hold`` first solves about half. ``labels`` tabulates a run's solves by the start's distance
 from upright (which succeed, their values, whether the solved trajectories end balanced) and ``guesses`` compares
 the plan with IPOPT from energy-pumping initial guesses (:func:`pumping_guess`) on a few starts: the labels'
 quality is the weak point of this recipe (docs/experiments/dmc-learned.md).
 
-``tune`` and ``evaluate`` deploy ``LimitedLookaheadMPC(task, network, horizon=N)`` at the suite's control period
-(0.02 s, the task's ``control_period``: ``hold`` 1) in dm_control's own episodes
-(:func:`seagul_control.dmc.run_dmc_episode` through :class:`~seagul_control.dmc.PredictController`). ``evaluate``
-writes ``{"tasks": {env_id: {"rows": [{"controller", "scores", "mean", "std", "seeds", "decision_ms_median",
-"decision_ms_p95", "hold", "solves", "network", "train_wall_s", "failed_solves", "budget_solves", "labels"}]}},
-"seeds", "tuning_seeds", "params", "tuned_on", "tuning", "command", "machine", ...}``: the rows of
-``benchmarks/results/dmc.json`` plus the network's file, training budget and (when its run directory is still there)
-training wall time, failed solves and ``labels``, and the tuning lines the setting was chosen by.
+``tune`` and ``evaluate`` deploy the learned MPC exactly as ``seagul evaluate --dmc`` does
+(:func:`seagul_learn.dmc_eval.learned_dmc_controller` with a :class:`~seagul_learn.dmc_eval.DMCDeployment`:
+``LimitedLookaheadMPC(task, network, horizon=N)`` with the task's defaults, an interval ``dt``, a decision every
+``hold`` control steps, the cart-pole's rail bound dropped from the lookahead) in dm_control's own episodes
+(:func:`seagul_control.dmc.run_dmc_episode`). ``--dts`` are the MPC's intervals; without ``--holds`` each ``dt`` is
+also the decision period (the pendulum: 0.02 s, its control period); ``--holds 1`` decides at every control step
+over intervals of ``dt`` (the cart-pole: 0.05 s intervals, decisions every 0.01 s). ``evaluate`` writes (and merges
+into an existing file, one block per env) ``{"tasks": {env_id: {"rows": [{"controller", "scores", "mean", "std",
+"seeds", "decision_ms_median", "decision_ms_p95", "hold", "solves", "network", "train_wall_s", "failed_solves",
+"budget_solves", "labels"}], "seeds", "tuning_seeds", "params", "tuned_on", "tuning", "command", "machine",
+...}}, "variants": {env_id: {"rows": [...]}}}``: the rows of ``benchmarks/results/dmc.json`` plus the network's
+file, training budget and (when its run directory is still there) training wall time, failed solves and (pendulum)
+``labels``, and the tuning lines the setting was chosen by.
 
-The time to go [choice]: the suite's episode is 1,000 steps of 0.02 s (20 s) scored at every step, while the
-network is the value of a 10 s problem ``V(x, tau)``, ``tau <= 10`` s. By default the MPC is given a **constant**
+The time to go [choice]: the suite's episode is 1,000 control steps (the pendulum 20 s, the cart-pole 10 s) scored
+at every step, while the network is the value of a finite problem ``V(x, tau)`` (``tau <= 10`` s, the cart-pole's
+``<= 4`` s). By default the MPC is given a **constant**
 time to go ``tau_V + N dt`` (``PredictController(time_to_go=...)``), so its terminal cost is always
 ``V(x_N, tau_V)``: "the optimal cost of the next ``tau_V`` seconds after the lookahead", a stationary receding-horizon
 policy that never enters the MPC's end phase (the suite's episode has no end for the controller to plan for: every
@@ -53,9 +74,11 @@ from __future__ import annotations
 import argparse
 import dataclasses
 import json
+import math
 import shutil
 import sys
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -69,18 +92,91 @@ from seagul_envs import Task, make_task  # noqa: E402
 
 RESULTS = ROOT / "benchmarks" / "results"
 NETWORKS = RESULTS / "networks"
-ENV_ID = "dm_control/pendulum-swingup-v0"
 TUNING_SEEDS = tuple(range(100, 120))
 #: The training run's own record (wall time, machine), written into its output directory.
 TRAIN_RECORD = "bench_train.json"
-#: The trajectory optimizer's attempts for this task (module docstring).
-SOLVER_OPTIONS: dict[str, Any] = {"plan": ["ipopt:hold", "ipopt:line", "ipopt:goal"]}
+
+
+@dataclass(frozen=True)
+class Domain:
+    """One suite env's training recipe and default deployment (module docstring; ``--domain``)."""
+
+    name: str
+    env_id: str
+    task: str
+    solver_options: dict[str, Any] | None
+    """The trajectory optimizer's attempts (None: the task's default plan)."""
+    train_box: tuple[tuple[float, ...], tuple[float, ...]] | None
+    """The box the uniform sampler draws starts from (None: the task's X0)."""
+    hidden: tuple[int, ...]
+    solves_per_round: int
+    workers: int
+    deployment: Any
+    """The :class:`~seagul_learn.dmc_eval.DMCDeployment` ``evaluate`` uses unless told otherwise."""
+
+
+def _domains() -> dict[str, Domain]:
+    from seagul_learn.dmc_eval import DEFAULT_DEPLOYMENTS, DMCDeployment
+
+    pendulum = "dm_control/pendulum-swingup-v0"
+    cartpole = "dm_control/cartpole-swingup-v0"
+    cartpole_recipe = {
+        "task": "dmc_cartpole",
+        "solver_options": None,
+        "train_box": ((-1.2, -math.pi, -3.0, -7.0), (1.2, math.pi, 3.0, 7.0)),
+        "hidden": (128, 128),
+        "solves_per_round": 100,
+        "workers": 2,
+    }
+    sparse = "dm_control/cartpole-swingup_sparse-v0"
+    fallback = DMCDeployment(horizon=5, time_to_go=2.0, dt=0.05, path_bounds=False)
+    return {
+        "pendulum": Domain(
+            name="pendulum",
+            env_id=pendulum,
+            task="dmc_pendulum",
+            solver_options={"plan": ["ipopt:hold", "ipopt:line", "ipopt:goal"]},
+            train_box=None,
+            hidden=(64, 64),
+            solves_per_round=50,
+            workers=1,
+            deployment=DEFAULT_DEPLOYMENTS.get(pendulum, DMCDeployment()),
+        ),
+        "cartpole": Domain(
+            name="cartpole",
+            env_id=cartpole,
+            deployment=DEFAULT_DEPLOYMENTS.get(cartpole, fallback),
+            **cartpole_recipe,
+        ),
+        "cartpole_sparse": Domain(
+            name="cartpole_sparse",
+            env_id=sparse,
+            deployment=DEFAULT_DEPLOYMENTS.get(sparse, fallback),
+            **cartpole_recipe,
+        ),
+    }
+
+
+DOMAINS = _domains()
+#: The pendulum's attempts (module docstring), kept under their old name for the diagnostics below.
+SOLVER_OPTIONS: dict[str, Any] = dict(DOMAINS["pendulum"].solver_options or {})
+ENV_ID = DOMAINS["pendulum"].env_id
+
+
+def domain_task(domain: Domain, training: bool = False) -> Task:
+    """The domain's task (its periodic angles declared); ``training``: with X0 replaced by ``train_box``."""
+    task = make_task(domain.task)
+    if domain.name == "pendulum" and not task.periodic:
+        task = dataclasses.replace(task, periodic=(0,))
+    if training and domain.train_box is not None:
+        low, high = (np.asarray(b, dtype=float) for b in domain.train_box)
+        task = dataclasses.replace(task, x0_low=low, x0_high=high)
+    return task
 
 
 def pendulum_task() -> Task:
     """``dmc_pendulum`` with its hinge declared periodic (``(0,)``), as the suite task declares it."""
-    task = make_task("dmc_pendulum")
-    return task if task.periodic else dataclasses.replace(task, periodic=(0,))
+    return domain_task(DOMAINS["pendulum"])
 
 
 #: ``train --guess``: the trajectory optimizer's plan (``SOLVER_OPTIONS``), IPOPT from energy-pumping guesses, or
@@ -91,12 +187,13 @@ PUMPING_GAIN = 2.0
 PUMPING_KICKS = (1.0, -1.0)
 
 
-def network_path(sampler: str, budget: int, seed: int, guess: str = "plan") -> Path:
+def network_path(sampler: str, budget: int, seed: int, guess: str = "plan", domain: str = "pendulum") -> Path:
+    """The committed network of a training run (the sparse cart-pole deploys the cart-pole's: one task, one value)."""
     label = sampler if guess == "plan" else f"{sampler}-{guess}"
-    return NETWORKS / f"dmc_pendulum_{label}_b{budget}_seed{seed}.pt"
+    return NETWORKS / f"{DOMAINS[domain].task}_{label}_b{budget}_seed{seed}.pt"
 
 
-def train_config(sampler: str, budget: int, seed: int) -> Any:
+def train_config(sampler: str, budget: int, seed: int, domain: str = "pendulum") -> Any:
     """The training run's configuration (module docstring)."""
     from seagul_learn.config import (
         ClosedLoopOptions,
@@ -108,20 +205,22 @@ def train_config(sampler: str, budget: int, seed: int) -> Any:
         UniformOptions,
     )
 
+    d = DOMAINS[domain]
     options: Any = UniformOptions() if sampler == "uniform" else ClosedLoopOptions(uniform_solves=budget // 2)
+    per_round = d.solves_per_round
     return TrainConfig(
-        task=pendulum_task(),
+        task=domain_task(d, training=True),
         seed=seed,
         budget=budget,
         sampler=options,
-        network=NetworkConfig(hidden=(64, 64)),
+        network=NetworkConfig(hidden=d.hidden),
         schedule=ScheduleConfig(
-            solves_per_round=50, train_steps_per_round=1000, pretrain_solves=50, pretrain_steps=1000
+            solves_per_round=per_round, train_steps_per_round=1000, pretrain_solves=per_round, pretrain_steps=1000
         ),
         refit=RefitConfig(steps=20000),
         validate=False,
-        solver_options=dict(SOLVER_OPTIONS),
-        runtime=RuntimeConfig(workers=1, progress=False),
+        solver_options=None if d.solver_options is None else dict(d.solver_options),
+        runtime=RuntimeConfig(workers=d.workers, progress=False),
     )
 
 
@@ -169,18 +268,20 @@ def pumping_batch_solver(with_plan: bool = False) -> Any:
     return batch
 
 
-def train(sampler: str, budget: int, seed: int, out: Path, guess: str = "plan") -> Path:
+def train(sampler: str, budget: int, seed: int, out: Path, guess: str = "plan", domain: str = "pendulum") -> Path:
     """Train, copy the network into ``benchmarks/results/networks`` and return its path."""
     from seagul_learn.training import train as run
 
+    if guess != "plan" and domain != "pendulum":
+        raise ValueError(f"--guess {guess} exists for the pendulum only, not {domain!r}")
     start = time.perf_counter()
     if guess == "plan":
-        run(train_config(sampler, budget, seed), out)
+        run(train_config(sampler, budget, seed, domain), out)
     else:
         solver = pumping_batch_solver(with_plan=guess == "multistart")
         run(train_config(sampler, budget, seed), out, batch_solver=solver, solver_name=f"{guess}-bench")
     wall = time.perf_counter() - start
-    target = network_path(sampler, budget, seed, guess)
+    target = network_path(sampler, budget, seed, guess, domain)
     target.parent.mkdir(parents=True, exist_ok=True)
     shutil.copyfile(out / "network.pt", target)
     record = {"network": target.name, "train_wall_s": round(wall, 1), "machine": machine("torch")}
@@ -190,8 +291,9 @@ def train(sampler: str, budget: int, seed: int, out: Path, guess: str = "plan") 
 
 
 def make_mpc(network: Any, horizon: int, dt: float | None = None) -> Any:
-    """``LimitedLookaheadMPC(task, network, horizon=N)`` with the task's defaults (the condensed ``shooting`` solver
-    for N <= 10, the ``lqr`` guard ``Vhat + l_f``); ``dt`` None: the task's control period (0.02 s)."""
+    """The pendulum's ``LimitedLookaheadMPC(task, network, horizon=N)`` with the task's defaults (the condensed
+    ``shooting`` solver for N <= 10, the ``lqr`` guard ``Vhat + l_f``); ``dt`` None: the task's control period
+    (0.02 s). For ``trace``; ``tune`` and ``evaluate`` deploy through :func:`suite_controller`."""
     from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
 
     options = MPCOptions() if dt is None else MPCOptions(dt=dt)
@@ -214,12 +316,37 @@ def controller(mpc: Any, tau_v: float, countdown: float = 0.0) -> Any:
     return PredictController(mpc, time_to_go=time_to_go(mpc, tau_v, countdown), observation_dtype=np.float64)
 
 
-def score(mpc: Any, tau_v: float, seeds: list[int], hold: int, countdown: float = 0.0) -> dict[str, Any]:
-    """dm_control's scores of the MPC on ``seeds`` with the row's timing fields (``bench_dmc.score_row``'s row
-    without its controller name)."""
+def deployment(
+    domain: Domain, horizon: int, tau_v: float, dt: float, hold: int | None, path_bounds: bool | None = None
+) -> Any:
+    """The :class:`~seagul_learn.dmc_eval.DMCDeployment` of a setting: ``hold`` None decides every ``dt`` (``dt`` a
+    multiple of the control period), else every ``hold`` control steps over a lookahead of ``dt`` intervals; the
+    path bounds as the domain deploys them unless ``path_bounds`` says."""
+    from seagul_learn.dmc_eval import DMCDeployment
+
+    period = make_task(domain.task).control_period
+    steps = round(dt / period) if hold is None else hold
+    interval = None if math.isclose(steps * period, dt) else dt
+    bounds = domain.deployment.path_bounds if path_bounds is None else path_bounds
+    return DMCDeployment(horizon=horizon, time_to_go=tau_v, hold=steps, dt=interval, path_bounds=bounds)
+
+
+def suite_controller(domain: Domain, network: Any, setting: Any, countdown: float = 0.0) -> Any:
+    """The learned MPC as ``seagul evaluate --dmc`` deploys it (:func:`seagul_learn.dmc_eval.learned_dmc_controller`);
+    ``countdown > 0``: the time to go counts down instead (:func:`time_to_go`)."""
+    from seagul_learn.dmc_eval import learned_dmc_controller
+
+    deployed = learned_dmc_controller(domain.env_id, network, setting)
+    return deployed if countdown <= 0 else controller(deployed.policy, float(setting.time_to_go), countdown)
+
+
+def score(domain: Domain, network: Any, setting: Any, seeds: list[int], countdown: float = 0.0) -> dict[str, Any]:
+    """dm_control's scores of the learned MPC on ``seeds`` with the row's timing fields (``bench_dmc.score_row``'s
+    row without its controller name)."""
     from benchmarks.bench_dmc import score_row
 
-    row = score_row(ENV_ID, "learned MPC", lambda _seed: controller(mpc, tau_v, countdown), seeds, hold=hold)
+    ctrl = suite_controller(domain, network, setting, countdown)
+    row = score_row(domain.env_id, "learned MPC", lambda _seed: ctrl, seeds, hold=setting.hold)
     row.pop("controller")
     return row
 
@@ -237,20 +364,32 @@ def tune(
     dts: list[float],
     seeds: list[int],
     countdowns: tuple[float, ...] = (0.0,),
+    domain: str = "pendulum",
+    holds: tuple[int | None, ...] = (None,),
+    path_bounds: bool | None = None,
 ) -> list[dict[str, Any]]:
-    """Mean score on tuning seeds (``TUNING_SEEDS``, never 0-9) of every (horizon, dt, tau_V); one JSON line each."""
+    """Mean score on tuning seeds (``TUNING_SEEDS``, never 0-9) of every (hold, dt, horizon, countdown, tau_V); one
+    JSON line each."""
+    d = DOMAINS[domain]
     network = load_network(path)
     out = []
-    for dt in dts:
-        hold = round(dt / pendulum_task().control_period)
-        for horizon in horizons:
-            mpc = make_mpc(network, horizon, dt)
-            for countdown in countdowns:
-                for tau_v in taus:
-                    row = score(mpc, tau_v, seeds, hold, countdown)
-                    line = {"horizon": horizon, "dt": dt, "tau_v": tau_v, "countdown": countdown, **row}
-                    print(json.dumps(line), flush=True)
-                    out.append(line)
+    for hold in holds:
+        for dt in dts:
+            for horizon in horizons:
+                for countdown in countdowns:
+                    for tau_v in taus:
+                        setting = deployment(d, horizon, tau_v, dt, hold, path_bounds)
+                        row = score(d, network, setting, seeds, countdown)
+                        line = {
+                            "horizon": horizon,
+                            "dt": dt,
+                            "tau_v": tau_v,
+                            "countdown": countdown,
+                            "path_bounds": setting.path_bounds,
+                            **row,
+                        }
+                        print(json.dumps(line), flush=True)
+                        out.append(line)
     return out
 
 
@@ -258,6 +397,7 @@ def tune(
 TUNE_KEYS = (
     "horizon",
     "dt",
+    "path_bounds",
     "tau_v",
     "countdown",
     "hold",
@@ -390,24 +530,32 @@ def guesses(angles: list[float]) -> list[dict[str, Any]]:
 
 
 def evaluate(
-    path: Path, horizon: int, tau_v: float, dt: float, seeds: list[int], solves: int, countdown: float = 0.0
+    path: Path,
+    horizon: int,
+    tau_v: float,
+    dt: float,
+    seeds: list[int],
+    solves: int,
+    countdown: float = 0.0,
+    domain: str = "pendulum",
+    hold: int | None = None,
 ) -> dict[str, Any]:
-    network = load_network(path)
-    mpc = make_mpc(network, horizon, dt)
-    hold = round(dt / pendulum_task().control_period)
-    row = score(mpc, tau_v, seeds, hold, countdown)
+    d = DOMAINS[domain]
+    setting = deployment(d, horizon, tau_v, dt, hold)
+    row = score(d, load_network(path), setting, seeds, countdown)
     name = f"learned_mpc_N{horizon}_dt{dt:g}_tau{tau_v:g}" + (f"_countdown{countdown:g}" if countdown > 0 else "")
     return {
         "controller": name,
         "horizon": horizon,
         "dt": dt,
         "tau_v": tau_v,
+        "time_to_go": tau_v,
         "countdown": countdown,
         **row,
         "solves": solves,
         "network": str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path),
         "guess": next((g for g in GUESSES[1:] if f"-{g}_" in path.name), "plan"),
-        **training_record(path),
+        **training_record(path, d),
     }
 
 
@@ -416,9 +564,9 @@ def run_dir(path: Path) -> Path:
     return Path("/tmp") / path.stem
 
 
-def training_record(path: Path) -> dict[str, Any]:
-    """The training run's wall time, failed solves and :func:`labels`, when its output directory (``run_dir``) is still
-    there."""
+def training_record(path: Path, domain: Domain | None = None) -> dict[str, Any]:
+    """The training run's wall time, failed solves and (pendulum) :func:`labels`, when its output directory
+    (``run_dir``) is still there."""
     out: dict[str, Any] = {}
     directory = run_dir(path)
     if (directory / TRAIN_RECORD).exists():
@@ -428,7 +576,7 @@ def training_record(path: Path) -> dict[str, Any]:
         last = metrics["metrics"][-1]
         out["failed_solves"] = int(last["failures"])
         out["budget_solves"] = int(last["solves"])
-    if (directory / "dataset" / "records").is_dir():
+    if (directory / "dataset" / "records").is_dir() and (domain is None or domain.name == "pendulum"):
         out["labels"] = labels(directory)
     return out
 
@@ -442,12 +590,21 @@ def main(argv: list[str] | None = None) -> None:
     tr.add_argument("--seed", type=int, default=0)
     tr.add_argument("--out", type=Path, default=None)
     tr.add_argument("--guess", default="plan", choices=GUESSES)
+    tr.add_argument("--domain", default="pendulum", choices=sorted(DOMAINS))
     tu = sub.add_parser("tune")
     tu.add_argument("network", type=Path)
+    tu.add_argument("--domain", default="pendulum", choices=sorted(DOMAINS))
     tu.add_argument("--horizons", type=int, nargs="+", default=[10])
     tu.add_argument("--taus", type=float, nargs="+", default=[5.0])
-    tu.add_argument("--dts", type=float, nargs="+", default=[0.02])
+    tu.add_argument("--dts", type=float, nargs="+", default=[0.02], help="the MPC's intervals (s)")
+    tu.add_argument("--holds", type=int, nargs="+", default=None, help="control steps per decision (default: dt's)")
     tu.add_argument("--countdowns", type=float, nargs="+", default=[0.0])
+    tu.add_argument(
+        "--path-bounds",
+        choices=("keep", "drop"),
+        default=None,
+        help="keep or drop the task's state path bounds in the lookahead (default: the domain's deployment)",
+    )
     tu.add_argument("--seeds", default=f"{TUNING_SEEDS[0]}-{TUNING_SEEDS[-1]}")
     la = sub.add_parser("labels")
     la.add_argument("run", type=Path, help="a training run's output directory")
@@ -460,10 +617,12 @@ def main(argv: list[str] | None = None) -> None:
     gu.add_argument("--angles", type=float, nargs="+", default=[0.3, 0.8, 1.2, 1.8, 2.4, 3.0])
     ev = sub.add_parser("evaluate")
     ev.add_argument("network", type=Path, nargs="+")
+    ev.add_argument("--domain", default="pendulum", choices=sorted(DOMAINS))
     ev.add_argument("--solves", type=int, nargs="+", required=True, help="each network's training budget")
     ev.add_argument("--horizon", type=int, default=5)
     ev.add_argument("--tau", type=float, default=5.0)
-    ev.add_argument("--dt", type=float, default=0.02)
+    ev.add_argument("--dt", type=float, default=0.02, help="the MPC's interval (s)")
+    ev.add_argument("--hold", type=int, default=None, help="control steps per decision (default: dt's)")
     ev.add_argument("--countdown", type=float, default=0.0)
     ev.add_argument("--seeds", default="0-9")
     ev.add_argument("--json", type=Path, default=None)
@@ -476,8 +635,8 @@ def main(argv: list[str] | None = None) -> None:
     ev.add_argument("--tuned-on", type=Path, default=None, help="the network the tuning lines were measured with")
     args = parser.parse_args(argv)
     if args.command == "train":
-        out = args.out or run_dir(network_path(args.sampler, args.budget, args.seed, args.guess))
-        train(args.sampler, args.budget, args.seed, out, args.guess)
+        out = args.out or run_dir(network_path(args.sampler, args.budget, args.seed, args.guess, args.domain))
+        train(args.sampler, args.budget, args.seed, out, args.guess, args.domain)
     elif args.command == "labels":
         for line in labels(args.run):
             print(json.dumps(line))
@@ -490,15 +649,31 @@ def main(argv: list[str] | None = None) -> None:
         seeds = parse_seeds(args.seeds)
         if set(seeds) & set(range(10)):
             parser.error("the tuning seeds must not include the evaluation seeds 0-9")
-        tune(args.network, args.horizons, args.taus, args.dts, seeds, tuple(args.countdowns))
+        holds = tuple(args.holds) if args.holds else (None,)
+        bounds = None if args.path_bounds is None else args.path_bounds == "keep"
+        tune(
+            args.network, args.horizons, args.taus, args.dts, seeds, tuple(args.countdowns), args.domain, holds, bounds
+        )
     else:
         start = time.perf_counter()
+        domain = DOMAINS[args.domain]
         rows = [
-            evaluate(path, args.horizon, args.tau, args.dt, parse_seeds(args.seeds), solves, args.countdown)
+            evaluate(
+                path,
+                args.horizon,
+                args.tau,
+                args.dt,
+                parse_seeds(args.seeds),
+                solves,
+                args.countdown,
+                domain.name,
+                args.hold,
+            )
             for path, solves in zip(args.network, args.solves, strict=True)
         ]
-        result = {
-            "tasks": {ENV_ID: {"rows": rows}},
+        setting = deployment(domain, args.horizon, args.tau, args.dt, args.hold)
+        block = {
+            "rows": rows,
             "seeds": parse_seeds(args.seeds),
             "tuning_seeds": list(TUNING_SEEDS),
             "params": {
@@ -506,7 +681,10 @@ def main(argv: list[str] | None = None) -> None:
                 "dt": args.dt,
                 "tau_v": args.tau,
                 "countdown": args.countdown,
-                "solver_options": SOLVER_OPTIONS,
+                "hold": setting.hold,
+                "path_bounds": setting.path_bounds,
+                "solver_options": domain.solver_options,
+                "train_box": None if domain.train_box is None else [list(b) for b in domain.train_box],
             },
             "tuned_on": None if args.tuned_on is None else str(args.tuned_on),
             "tuning": [
@@ -518,15 +696,18 @@ def main(argv: list[str] | None = None) -> None:
             "command": " ".join(["benchmarks/bench_dmc_learned.py", *(argv if argv is not None else sys.argv[1:])]),
             "machine": machine("mujoco", "shimmy", "gymnasium", "torch"),
         }
+        previous = json.loads(args.json.read_text()) if args.json is not None and args.json.exists() else {}
+        result = {"tasks": {}, **previous}
         if args.variant:
-            if args.json is None or not args.json.exists():
-                parser.error("--variant needs an existing --json file")
-            previous = json.loads(args.json.read_text())
-            if previous["params"] != result["params"] or previous["seeds"] != result["seeds"]:
+            base = result["tasks"].get(domain.env_id)
+            if base is None:
+                parser.error(f"--variant needs an existing --json file with {domain.env_id}")
+            if base["params"] != block["params"] or base["seeds"] != block["seeds"]:
                 parser.error("--variant: the existing file was measured with other settings or seeds")
-            variants = previous.setdefault("variants", {}).setdefault(ENV_ID, {"rows": []})
-            variants["rows"] += [row | {key: result[key] for key in ("command", "wall_s", "machine")} for row in rows]
-            result = previous
+            variants = result.setdefault("variants", {}).setdefault(domain.env_id, {"rows": []})
+            variants["rows"] += [row | {key: block[key] for key in ("command", "wall_s", "machine")} for row in rows]
+        else:
+            result["tasks"][domain.env_id] = block
         text = json.dumps(result, indent=1)
         if args.json is not None:
             args.json.write_text(text + "\n")

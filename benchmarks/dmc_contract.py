@@ -54,10 +54,11 @@ def _load(name: str, results: Path) -> dict[str, Any] | None:
 def learned_block(env_id: str, results: Path = RESULTS) -> dict[str, Any] | None:
     """The learned MPC's block from ``dmc_learned.json`` (module docstring), or None."""
     data = _load("dmc_learned.json", results)
-    rows = ((data or {}).get("tasks", {}).get(env_id) or {}).get("rows") or []
+    block = (data or {}).get("tasks", {}).get(env_id) or {}
+    rows = block.get("rows") or []
     if not rows:
         return None
-    params = (data or {}).get("params", {})
+    params = block.get("params", {})
     scores = [s for row in rows for s in row["scores"]]
     return {
         "score_mean": round(float(np.mean(scores)), 3),
@@ -70,6 +71,8 @@ def learned_block(env_id: str, results: Path = RESULTS) -> dict[str, Any] | None
         "horizon": int(rows[0].get("horizon", params.get("horizon"))),
         "time_to_go": rows[0].get("time_to_go", params.get("tau_v")),
         "hold": rows[0].get("hold"),
+        "dt": params.get("dt"),
+        "path_bounds": params.get("path_bounds", True),
         "median_ms": round(float(np.median([row["decision_ms_median"] for row in rows])), 4),
         "p95_ms": round(float(np.median([row["decision_ms_p95"] for row in rows])), 4),
         "network": rows[0]["network"],

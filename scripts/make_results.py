@@ -755,10 +755,11 @@ def section_dmc() -> str:
         rows.append([DMC_LABELS.get(controller, controller), *[_dmc_cell(per_task.get(t)) for t in DMC_TASKS]])
     learned = (RESULTS / "dmc_learned.json").exists() and load("dmc_learned.json")
     for env_id, block in (learned["tasks"] if learned else {}).items():
-        name, lp = env_id.split("/")[-1].removesuffix("-v0"), learned["params"]
+        name, lp = env_id.split("/")[-1].removesuffix("-v0"), block["params"]
         for r in block["rows"]:
-            label = (f"learned MPC, N = {lp['horizon']}, tau_V = {lp['tau_v']:g} s, {r['solves']:,} solves "
-                     f"(`{r['network'].split('/')[-1]}`, {r['decision_ms_median']:.2f} ms median step)")
+            label = (f"learned MPC, N = {lp['horizon']} x {lp['dt']:g} s, tau_V = {lp['tau_v']:g} s, "
+                     f"{r['solves']:,} solves (`{r['network'].split('/')[-1]}`, {r['decision_ms_median']:.2f} ms "
+                     "median step)")
             rows.append([label, *[_dmc_cell(r) if t == name else "" for t in DMC_TASKS]])
     pooled = {t: data[t]["learned_mpc"] for t in DMC_TASKS if data[t].get("learned_mpc")}
     if pooled:
@@ -767,10 +768,11 @@ def section_dmc() -> str:
             f"({pooled[t]['seeds']} x {pooled[t]['episodes']})" for t in DMC_TASKS]])
     out += ["", table(["controller", *DMC_TASKS], rows), "",
             f"Command: `{data['command']}` ({machine_line(data.get('machine'))})."]
-    if learned:
-        out[-1] += (" Learned MPC: `benchmarks/results/dmc_learned.json`, `" + learned["command"].split(" --tuning")[0]
-                    + "`; the setting was chosen on reset seeds " + f"{learned['tuning_seeds'][0]}-"
-                    f"{learned['tuning_seeds'][-1]} ([the learned MPC](experiments/dmc-learned.md)).")
+    for env_id, block in (learned["tasks"] if learned else {}).items():
+        out[-1] += (f" Learned MPC on {env_id.split('/')[-1].removesuffix('-v0')}: "
+                    "`benchmarks/results/dmc_learned.json`, `" + block["command"].split(" --tuning")[0]
+                    + "`; the setting was chosen on reset seeds " + f"{block['tuning_seeds'][0]}-"
+                    f"{block['tuning_seeds'][-1]} ([the learned MPC](experiments/dmc-learned.md)).")
     if (RESULTS / "dmc_published.json").exists():
         pub = load("dmc_published.json")["scores"]
         prow = [[p["task"], p["method"], f"{p['score']:.0f}", f"{p['env_steps']:,}", p.get("observations", ""),

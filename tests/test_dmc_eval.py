@@ -67,6 +67,22 @@ def test_the_deployment_sets_the_mpc() -> None:
     assert learned_dmc_controller("pendulum-swingup", network, jit=False).policy.horizon == default.horizon
 
 
+def test_the_lookahead_interval_and_path_bounds_are_the_deployments() -> None:
+    """The cart-pole's setting: one decision per 0.01 s control step over 0.05 s intervals, the rail bound dropped
+    from the lookahead so the condensed solver applies (with the bound the MPC solves by fatrop)."""
+    network = ValueNetwork(4, hidden=(4,), task_name="dmc_cartpole", seed=0, periodic=(1,))
+    free = learned_dmc_controller(
+        "cartpole-swingup", network, DMCDeployment(3, 2.0, 1, dt=0.05, path_bounds=False), jit=False
+    )
+    assert free.policy.dt == pytest.approx(0.05) and free.policy.solver == "shooting"
+    assert free.tau(0.0) == pytest.approx(2.0 + 3 * 0.05)
+    assert np.all(np.isinf(free.policy.task.x_low)) and np.all(np.isinf(free.policy.task.x_high))
+    bounded = learned_dmc_controller("cartpole-swingup", network, DMCDeployment(3, 2.0, 1, dt=0.05), jit=False)
+    assert bounded.policy.solver != "shooting" and bounded.policy.task.x_high[0] == pytest.approx(1.8)
+    # The same physics either way: only the bounds differ.
+    assert free.policy.task.name == bounded.policy.task.name == "dmc_cartpole"
+
+
 @pytest.mark.parametrize(
     ("kwargs", "message"),
     [
@@ -74,6 +90,8 @@ def test_the_deployment_sets_the_mpc() -> None:
         ({"hold": 0}, "hold"),
         ({"time_to_go": -1.0}, "time_to_go"),
         ({"time_to_go": float("nan")}, "time_to_go"),
+        ({"dt": 0.0}, "dt"),
+        ({"dt": float("inf")}, "dt"),
     ],
 )
 def test_deployment_rejects_bad_values(kwargs: dict, message: str) -> None:

@@ -16,6 +16,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks import dmc_contract  # noqa: E402
+from seagul_control.dmc import DMC_TASKS  # noqa: E402
+from seagul_envs import make_task  # noqa: E402
 
 TASKS = ("acrobot-swingup", "cartpole-swingup", "pendulum-swingup")
 LEARNED_KEYS = {"score_mean", "score_std", "seeds", "episodes", "solves", "horizon", "median_ms", "p95_ms", "network"}
@@ -110,8 +112,12 @@ def test_the_cli_deploys_what_the_benchmark_measured(dmc: dict[str, Any]) -> Non
         if learned is None:
             continue
         setting = DEFAULT_DEPLOYMENTS.get(dmc[name]["env_id"], DMCDeployment())
-        assert (setting.horizon, setting.time_to_go, setting.hold) == (
+        assert (setting.horizon, setting.time_to_go, setting.hold, setting.path_bounds) == (
             learned["horizon"],
             learned["time_to_go"],
             learned["hold"],
+            learned["path_bounds"],
         )
+        period = make_task(DMC_TASKS[dmc[name]["env_id"]]).control_period
+        interval = setting.dt if setting.dt is not None else setting.hold * period
+        assert interval == pytest.approx(learned["dt"])

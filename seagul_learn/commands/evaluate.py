@@ -18,8 +18,8 @@ In the DeepMind Control Suite::
 
 runs the learned MPC (:mod:`seagul_learn.dmc_eval`) in dm_control's own env on reset seeds ``S .. S+N-1``, scored by
 dm_control's reward, and prints a JSON object last: ``{"task", "score_mean", "score_std", "episodes", "median_ms",
-"p95_ms", ...}`` (``--task`` and ``--out`` are not used; ``--horizon``, ``--time-to-go`` and ``--hold`` override
-the env's deployment, :data:`seagul_learn.dmc_eval.DEFAULT_DEPLOYMENTS`).
+"p95_ms", ...}`` (``--task`` and ``--out`` are not used; ``--horizon``, ``--time-to-go``, ``--hold`` and ``--dt``
+override the env's deployment, :data:`seagul_learn.dmc_eval.DEFAULT_DEPLOYMENTS`).
 """
 
 from __future__ import annotations
@@ -32,7 +32,13 @@ from typing import Any
 from seagul_control.starts import start_grid
 from seagul_envs import resolve_task
 from seagul_learn.cli import Command
-from seagul_learn.commands._args import add_task_argument, non_negative_float, non_negative_int, positive_int
+from seagul_learn.commands._args import (
+    add_task_argument,
+    non_negative_float,
+    non_negative_int,
+    positive_float,
+    positive_int,
+)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -57,6 +63,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     dmc.add_argument(
         "--hold", type=positive_int, default=None, help="--dmc: control steps per MPC decision (default: the env's)"
+    )
+    dmc.add_argument(
+        "--dt", type=positive_float, default=None, help="--dmc: the MPC's interval in s (default: the env's)"
     )
     parser.add_argument("--network", action="append", default=[], help="value network file for an MPC (repeatable)")
     parser.add_argument("--label", action="append", default=[], help="label of each --network MPC, in order")
@@ -165,7 +174,12 @@ def run_dmc(args: argparse.Namespace) -> int:
     setting = DEFAULT_DEPLOYMENTS.get(env_id, DMCDeployment())
     changes = {
         key: value
-        for key, value in (("horizon", args.horizon), ("time_to_go", args.time_to_go), ("hold", args.hold))
+        for key, value in (
+            ("horizon", args.horizon),
+            ("time_to_go", args.time_to_go),
+            ("hold", args.hold),
+            ("dt", args.dt),
+        )
         if value is not None
     }
     setting = dataclasses.replace(setting, **changes)
