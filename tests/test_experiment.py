@@ -303,7 +303,13 @@ def _strip_times(summary: dict) -> dict:
     return summary
 
 
+@pytest.mark.slow
 def test_sigkill_then_resume_gives_the_uninterrupted_results(smoke_run: tuple[Path, str], tmp_path: Path) -> None:
+    """The whole ``seagul reproduce`` killed by SIGKILL once a training run has checkpointed, then resumed: the same
+    learning curves and closed-loop summary as the uninterrupted run. A second full smoke experiment (~90 s), so it
+    runs with ``-m slow``; the default suite checks the same contract by its parts: training killed at any moment and
+    resumed (``tests/test_training.py``), killed mid-round (``tests/test_interrupt.py``), and the experiment resuming
+    a run stored without its held-out episodes or its snapshot (the two tests above)."""
     reference, _ = smoke_run
     out = tmp_path / "killed"
     cmd = [sys.executable, "-m", "seagul_learn.cli", "reproduce", "acrobot", "--preset", "smoke", "--workers", "1"]
