@@ -12,7 +12,8 @@ Usage::
         [--json benchmarks/results/dmc_learned.json]
     nice -n 5 .venv/bin/python benchmarks/bench_dmc_learned.py labels RUN_DIR
     nice -n 5 .venv/bin/python benchmarks/bench_dmc_learned.py guesses [--angles 0.3 0.8 1.2 1.8 2.4 3.0]
-    nice -n 5 .venv/bin/python benchmarks/bench_dmc_learned.py trace NETWORK --seed S [--horizon 5] [--tau 5]
+    nice -n 5 .venv/bin/python benchmarks/bench_dmc_learned.py trace NETWORK --seed S [--horizon 5] [--tau 5] \\
+        [--domain pendulum]
 
 Measured results, the choices below and why: docs/experiments/dmc-learned.md.
 
@@ -443,8 +444,8 @@ def labels(run: Path) -> list[dict[str, Any]]:
 
 
 def trace(path: Path, horizon: int, tau_v: float, seed: int, every: int = 50) -> dict[str, Any]:
-    """One recorded episode of the learned MPC: its score and the hinge angle, velocity and action every ``every``
-    control steps (1 s by default)."""
+    """One recorded episode of the pendulum's learned MPC: its score and the hinge angle, velocity and action every
+    ``every`` control steps (1 s by default)."""
     from seagul_control.dmc import run_dmc_episode
 
     mpc = make_mpc(load_network(path), horizon)
@@ -458,6 +459,31 @@ def trace(path: Path, horizon: int, tau_v: float, seed: int, every: int = 50) ->
         "hinge": [round(float(q), 3) for q in states[: len(actions) : every, 0]],
         "hinge_vel": [round(float(v), 3) for v in states[: len(actions) : every, 1]],
         "action": [round(float(u), 3) for u in actions[::every]],
+    }
+
+
+def trace_states(path: Path, domain: str, seed: int, every: int = 10) -> dict[str, Any]:
+    """One recorded episode of the learned MPC as the domain deploys it: its score, every state coordinate every
+    ``every`` control steps, and each coordinate's largest magnitude and the control steps where the state left the
+    task's state bounds (the cart-pole's rail: dm_control's soft stop acts there, which the task does not model)."""
+    from seagul_control.dmc import run_dmc_episode
+
+    d = DOMAINS[domain]
+    task = make_task(d.task)
+    episode = run_dmc_episode(d.env_id, suite_controller(d, load_network(path), d.deployment), seed, record=True)
+    states = np.asarray(episode.states)
+    outside = np.where(np.any((states < task.x_low) | (states > task.x_high), axis=1))[0]
+    return {
+        "network": path.name,
+        "domain": domain,
+        "seed": seed,
+        "score": round(float(episode.score), 3),
+        "state_names": list(task.state_names),
+        "max_abs": [round(float(v), 3) for v in np.abs(states).max(axis=0)],
+        "steps_outside_bounds": int(outside.size),
+        "outside_from_to": [int(outside[0]), int(outside[-1])] if outside.size else None,
+        "t": [round(k * task.control_period, 2) for k in range(0, len(states), every)],
+        "states": [[round(float(v), 3) for v in row] for row in states[::every]],
     }
 
 
@@ -613,6 +639,9 @@ def main(argv: list[str] | None = None) -> None:
     trc.add_argument("--seed", type=int, required=True)
     trc.add_argument("--horizon", type=int, default=5)
     trc.add_argument("--tau", type=float, default=5.0)
+    trc.add_argument(
+        "--domain", default="pendulum", choices=sorted(DOMAINS), help="other than the pendulum: trace_states"
+    )
     gu = sub.add_parser("guesses")
     gu.add_argument("--angles", type=float, nargs="+", default=[0.3, 0.8, 1.2, 1.8, 2.4, 3.0])
     ev = sub.add_parser("evaluate")
@@ -641,7 +670,10 @@ def main(argv: list[str] | None = None) -> None:
         for line in labels(args.run):
             print(json.dumps(line))
     elif args.command == "trace":
-        print(json.dumps(trace(args.network, args.horizon, args.tau, args.seed)))
+        if args.domain == "pendulum":
+            print(json.dumps(trace(args.network, args.horizon, args.tau, args.seed)))
+        else:
+            print(json.dumps(trace_states(args.network, args.domain, args.seed)))
     elif args.command == "guesses":
         for line in guesses(args.angles):
             print(json.dumps(line), flush=True)
