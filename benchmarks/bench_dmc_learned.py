@@ -48,7 +48,7 @@ quality is the weak point of this recipe (docs/experiments/dmc-learned.md).
 ``tune`` and ``evaluate`` deploy the learned MPC exactly as ``seagul evaluate --dmc`` does
 (:func:`seagul_learn.dmc_eval.learned_dmc_controller` with a :class:`~seagul_learn.dmc_eval.DMCDeployment`:
 ``LimitedLookaheadMPC(task, network, horizon=N)`` with the task's defaults, an interval ``dt``, a decision every
-``hold`` control steps, the cart-pole's rail bound dropped from the lookahead) in dm_control's own episodes
+``hold`` control steps, the cart-pole's rail bound a penalty in the lookahead) in dm_control's own episodes
 (:func:`seagul_control.dmc.run_dmc_episode`). ``--dts`` are the MPC's intervals; without ``--holds`` each ``dt`` is
 also the decision period (the pendulum: 0.02 s, its control period); ``--holds 1`` decides at every control step
 over intervals of ``dt`` (the cart-pole: 0.05 s intervals, decisions every 0.01 s). ``evaluate`` writes (and merges
@@ -130,7 +130,7 @@ def _domains() -> dict[str, Domain]:
         "workers": 2,
     }
     sparse = "dm_control/cartpole-swingup_sparse-v0"
-    fallback = DMCDeployment(horizon=5, time_to_go=2.0, dt=0.05, path_bounds=False)
+    fallback = DMCDeployment(horizon=5, time_to_go=2.0, dt=0.05, path_bounds="soft")
     return {
         "pendulum": Domain(
             name="pendulum",
@@ -318,7 +318,7 @@ def controller(mpc: Any, tau_v: float, countdown: float = 0.0) -> Any:
 
 
 def deployment(
-    domain: Domain, horizon: int, tau_v: float, dt: float, hold: int | None, path_bounds: bool | None = None
+    domain: Domain, horizon: int, tau_v: float, dt: float, hold: int | None, path_bounds: str | None = None
 ) -> Any:
     """The :class:`~seagul_learn.dmc_eval.DMCDeployment` of a setting: ``hold`` None decides every ``dt`` (``dt`` a
     multiple of the control period), else every ``hold`` control steps over a lookahead of ``dt`` intervals; the
@@ -367,7 +367,7 @@ def tune(
     countdowns: tuple[float, ...] = (0.0,),
     domain: str = "pendulum",
     holds: tuple[int | None, ...] = (None,),
-    path_bounds: bool | None = None,
+    path_bounds: str | None = None,
 ) -> list[dict[str, Any]]:
     """Mean score on tuning seeds (``TUNING_SEEDS``, never 0-9) of every (hold, dt, horizon, countdown, tau_V); one
     JSON line each."""
@@ -462,7 +462,7 @@ def trace(path: Path, horizon: int, tau_v: float, seed: int, every: int = 50) ->
     }
 
 
-def trace_states(path: Path, domain: str, seed: int, every: int = 10) -> dict[str, Any]:
+def trace_states(path: Path, domain: str, seed: int, every: int = 10, path_bounds: str | None = None) -> dict[str, Any]:
     """One recorded episode of the learned MPC as the domain deploys it: its score, every state coordinate every
     ``every`` control steps, and each coordinate's largest magnitude and the control steps where the state left the
     task's state bounds (the cart-pole's rail: dm_control's soft stop acts there, which the task does not model)."""
@@ -470,13 +470,15 @@ def trace_states(path: Path, domain: str, seed: int, every: int = 10) -> dict[st
 
     d = DOMAINS[domain]
     task = make_task(d.task)
-    episode = run_dmc_episode(d.env_id, suite_controller(d, load_network(path), d.deployment), seed, record=True)
+    setting = d.deployment if path_bounds is None else dataclasses.replace(d.deployment, path_bounds=path_bounds)
+    episode = run_dmc_episode(d.env_id, suite_controller(d, load_network(path), setting), seed, record=True)
     states = np.asarray(episode.states)
     outside = np.where(np.any((states < task.x_low) | (states > task.x_high), axis=1))[0]
     return {
         "network": path.name,
         "domain": domain,
         "seed": seed,
+        "path_bounds": setting.path_bounds,
         "score": round(float(episode.score), 3),
         "state_names": list(task.state_names),
         "max_abs": [round(float(v), 3) for v in np.abs(states).max(axis=0)],
@@ -627,9 +629,9 @@ def main(argv: list[str] | None = None) -> None:
     tu.add_argument("--countdowns", type=float, nargs="+", default=[0.0])
     tu.add_argument(
         "--path-bounds",
-        choices=("keep", "drop"),
+        choices=("hard", "soft", "none"),
         default=None,
-        help="keep or drop the task's state path bounds in the lookahead (default: the domain's deployment)",
+        help="the task's state path bounds in the lookahead (default: the domain's deployment)",
     )
     tu.add_argument("--seeds", default=f"{TUNING_SEEDS[0]}-{TUNING_SEEDS[-1]}")
     la = sub.add_parser("labels")
@@ -642,6 +644,7 @@ def main(argv: list[str] | None = None) -> None:
     trc.add_argument(
         "--domain", default="pendulum", choices=sorted(DOMAINS), help="other than the pendulum: trace_states"
     )
+    trc.add_argument("--path-bounds", choices=("hard", "soft", "none"), default=None, help="trace_states only")
     gu = sub.add_parser("guesses")
     gu.add_argument("--angles", type=float, nargs="+", default=[0.3, 0.8, 1.2, 1.8, 2.4, 3.0])
     ev = sub.add_parser("evaluate")
@@ -673,7 +676,7 @@ def main(argv: list[str] | None = None) -> None:
         if args.domain == "pendulum":
             print(json.dumps(trace(args.network, args.horizon, args.tau, args.seed)))
         else:
-            print(json.dumps(trace_states(args.network, args.domain, args.seed)))
+            print(json.dumps(trace_states(args.network, args.domain, args.seed, path_bounds=args.path_bounds)))
     elif args.command == "guesses":
         for line in guesses(args.angles):
             print(json.dumps(line), flush=True)
@@ -682,9 +685,16 @@ def main(argv: list[str] | None = None) -> None:
         if set(seeds) & set(range(10)):
             parser.error("the tuning seeds must not include the evaluation seeds 0-9")
         holds = tuple(args.holds) if args.holds else (None,)
-        bounds = None if args.path_bounds is None else args.path_bounds == "keep"
         tune(
-            args.network, args.horizons, args.taus, args.dts, seeds, tuple(args.countdowns), args.domain, holds, bounds
+            args.network,
+            args.horizons,
+            args.taus,
+            args.dts,
+            seeds,
+            tuple(args.countdowns),
+            args.domain,
+            holds,
+            args.path_bounds,
         )
     else:
         start = time.perf_counter()
@@ -715,6 +725,8 @@ def main(argv: list[str] | None = None) -> None:
                 "countdown": args.countdown,
                 "hold": setting.hold,
                 "path_bounds": setting.path_bounds,
+                "soft_bound_margin": setting.soft_bound_margin,
+                "soft_bound_weight": setting.soft_bound_weight,
                 "solver_options": domain.solver_options,
                 "train_box": None if domain.train_box is None else [list(b) for b in domain.train_box],
             },

@@ -72,7 +72,7 @@ def learned_block(env_id: str, results: Path = RESULTS) -> dict[str, Any] | None
         "time_to_go": rows[0].get("time_to_go", params.get("tau_v")),
         "hold": rows[0].get("hold"),
         "dt": params.get("dt"),
-        "path_bounds": params.get("path_bounds", True),
+        "path_bounds": params.get("path_bounds", "hard"),
         "median_ms": round(float(np.median([row["decision_ms_median"] for row in rows])), 4),
         "p95_ms": round(float(np.median([row["decision_ms_p95"] for row in rows])), 4),
         "network": rows[0]["network"],

@@ -68,19 +68,37 @@ def test_the_deployment_sets_the_mpc() -> None:
 
 
 def test_the_lookahead_interval_and_path_bounds_are_the_deployments() -> None:
-    """The cart-pole's setting: one decision per 0.01 s control step over 0.05 s intervals, the rail bound dropped
-    from the lookahead so the condensed solver applies (with the bound the MPC solves by fatrop)."""
+    """The cart-pole's setting: one decision per 0.01 s control step over 0.05 s intervals, the rail bound a penalty
+    in the lookahead's stage cost so the condensed solver applies (with the bound kept the MPC solves by fatrop)."""
+    import casadi as ca
+
     network = ValueNetwork(4, hidden=(4,), task_name="dmc_cartpole", seed=0, periodic=(1,))
-    free = learned_dmc_controller(
-        "cartpole-swingup", network, DMCDeployment(3, 2.0, 1, dt=0.05, path_bounds=False), jit=False
+    soft = learned_dmc_controller(
+        "cartpole-swingup", network, DMCDeployment(3, 2.0, 1, dt=0.05, path_bounds="soft"), jit=False
     )
-    assert free.policy.dt == pytest.approx(0.05) and free.policy.solver == "shooting"
-    assert free.tau(0.0) == pytest.approx(2.0 + 3 * 0.05)
-    assert np.all(np.isinf(free.policy.task.x_low)) and np.all(np.isinf(free.policy.task.x_high))
-    bounded = learned_dmc_controller("cartpole-swingup", network, DMCDeployment(3, 2.0, 1, dt=0.05), jit=False)
-    assert bounded.policy.solver != "shooting" and bounded.policy.task.x_high[0] == pytest.approx(1.8)
-    # The same physics either way: only the bounds differ.
-    assert free.policy.task.name == bounded.policy.task.name == "dmc_cartpole"
+    assert soft.policy.dt == pytest.approx(0.05) and soft.policy.solver == "shooting"
+    assert soft.tau(0.0) == pytest.approx(2.0 + 3 * 0.05)
+    planned = soft.policy.task
+    assert np.all(np.isinf(planned.x_low)) and np.all(np.isinf(planned.x_high))
+    hard = learned_dmc_controller("cartpole-swingup", network, DMCDeployment(3, 2.0, 1, dt=0.05), jit=False)
+    assert hard.policy.solver != "shooting" and hard.policy.task.x_high[0] == pytest.approx(1.8)
+    # The penalty: zero inside the margin, w * excess^2 beyond it, on either side; the physics unchanged.
+    task = hard.policy.task
+    u = np.zeros(1)
+    for slider, excess in ((0.0, 0.0), (1.5, 0.0), (1.7, 0.2), (-1.9, 0.4)):
+        x = np.array([slider, 0.3, 0.1, -0.2])
+        extra = float(planned.stage_cost(x, u)) - float(task.stage_cost(x, u))
+        assert extra == pytest.approx(2000.0 * excess**2, rel=1e-9, abs=1e-12)
+    x, v = np.array([0.4, 2.0, 0.3, -1.0]), np.array([0.5])
+    assert np.allclose(np.asarray(planned.dynamics(x, v)), np.asarray(task.dynamics(x, v)))
+    none = learned_dmc_controller(
+        "cartpole-swingup", network, DMCDeployment(3, 2.0, 1, dt=0.05, path_bounds="none"), jit=False
+    )
+    assert none.policy.solver == "shooting"
+    assert float(none.policy.task.stage_cost(np.array([1.9, 0.3, 0.1, -0.2]), u)) == pytest.approx(
+        float(task.stage_cost(np.array([1.9, 0.3, 0.1, -0.2]), u))
+    )
+    assert isinstance(planned.stage_cost, ca.Function)
 
 
 @pytest.mark.parametrize(
@@ -92,6 +110,9 @@ def test_the_lookahead_interval_and_path_bounds_are_the_deployments() -> None:
         ({"time_to_go": float("nan")}, "time_to_go"),
         ({"dt": 0.0}, "dt"),
         ({"dt": float("inf")}, "dt"),
+        ({"path_bounds": "keep"}, "path_bounds"),
+        ({"soft_bound_weight": -1.0}, "soft_bound_weight"),
+        ({"soft_bound_margin": float("nan")}, "soft_bound_margin"),
     ],
 )
 def test_deployment_rejects_bad_values(kwargs: dict, message: str) -> None:

@@ -18,8 +18,8 @@ In the DeepMind Control Suite::
 
 runs the learned MPC (:mod:`seagul_learn.dmc_eval`) in dm_control's own env on reset seeds ``S .. S+N-1``, scored by
 dm_control's reward, and prints a JSON object last: ``{"task", "score_mean", "score_std", "episodes", "median_ms",
-"p95_ms", ...}`` (``--task`` and ``--out`` are not used; ``--horizon``, ``--time-to-go``, ``--hold`` and ``--dt``
-override the env's deployment, :data:`seagul_learn.dmc_eval.DEFAULT_DEPLOYMENTS`).
+"p95_ms", ...}`` (``--task`` and ``--out`` are not used; ``--horizon``, ``--time-to-go``, ``--hold``, ``--dt`` and
+``--path-bounds`` override the env's deployment, :data:`seagul_learn.dmc_eval.DEFAULT_DEPLOYMENTS`).
 """
 
 from __future__ import annotations
@@ -66,6 +66,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     dmc.add_argument(
         "--dt", type=positive_float, default=None, help="--dmc: the MPC's interval in s (default: the env's)"
+    )
+    dmc.add_argument(
+        "--path-bounds",
+        choices=("hard", "soft", "none"),
+        default=None,
+        help="--dmc: the task's state path bounds in the lookahead: constraints, a penalty, or dropped "
+        "(default: the env's)",
     )
     parser.add_argument("--network", action="append", default=[], help="value network file for an MPC (repeatable)")
     parser.add_argument("--label", action="append", default=[], help="label of each --network MPC, in order")
@@ -179,6 +186,7 @@ def run_dmc(args: argparse.Namespace) -> int:
             ("time_to_go", args.time_to_go),
             ("hold", args.hold),
             ("dt", args.dt),
+            ("path_bounds", args.path_bounds),
         )
         if value is not None
     }
