@@ -117,7 +117,7 @@ class Domain:
 
 
 def _domains() -> dict[str, Domain]:
-    from seagul_learn.dmc_eval import DEFAULT_DEPLOYMENTS, DMCDeployment
+    from seagul_learn.dmc_eval import DEFAULT_DEPLOYMENTS
 
     pendulum = "dm_control/pendulum-swingup-v0"
     cartpole = "dm_control/cartpole-swingup-v0"
@@ -130,7 +130,6 @@ def _domains() -> dict[str, Domain]:
         "workers": 2,
     }
     sparse = "dm_control/cartpole-swingup_sparse-v0"
-    fallback = DMCDeployment(horizon=5, time_to_go=2.0, dt=0.05, path_bounds="soft")
     return {
         "pendulum": Domain(
             name="pendulum",
@@ -141,34 +140,32 @@ def _domains() -> dict[str, Domain]:
             hidden=(64, 64),
             solves_per_round=50,
             workers=1,
-            deployment=DEFAULT_DEPLOYMENTS.get(pendulum, DMCDeployment()),
+            deployment=DEFAULT_DEPLOYMENTS[pendulum],
         ),
         "cartpole": Domain(
             name="cartpole",
             env_id=cartpole,
-            deployment=DEFAULT_DEPLOYMENTS.get(cartpole, fallback),
+            deployment=DEFAULT_DEPLOYMENTS[cartpole],
             **cartpole_recipe,
         ),
         "cartpole_sparse": Domain(
             name="cartpole_sparse",
             env_id=sparse,
-            deployment=DEFAULT_DEPLOYMENTS.get(sparse, fallback),
+            deployment=DEFAULT_DEPLOYMENTS[sparse],
             **cartpole_recipe,
         ),
     }
 
 
 DOMAINS = _domains()
-#: The pendulum's attempts (module docstring), kept under their old name for the diagnostics below.
+#: The pendulum's attempts and env id, used by its diagnostics below (``labels``, ``guesses``, ``trace``).
 SOLVER_OPTIONS: dict[str, Any] = dict(DOMAINS["pendulum"].solver_options or {})
 ENV_ID = DOMAINS["pendulum"].env_id
 
 
 def domain_task(domain: Domain, training: bool = False) -> Task:
-    """The domain's task (its periodic angles declared); ``training``: with X0 replaced by ``train_box``."""
+    """The domain's task; ``training``: with X0 replaced by ``train_box``."""
     task = make_task(domain.task)
-    if domain.name == "pendulum" and not task.periodic:
-        task = dataclasses.replace(task, periodic=(0,))
     if training and domain.train_box is not None:
         low, high = (np.asarray(b, dtype=float) for b in domain.train_box)
         task = dataclasses.replace(task, x0_low=low, x0_high=high)
@@ -176,7 +173,7 @@ def domain_task(domain: Domain, training: bool = False) -> Task:
 
 
 def pendulum_task() -> Task:
-    """``dmc_pendulum`` with its hinge declared periodic (``(0,)``), as the suite task declares it."""
+    """``dmc_pendulum`` (its hinge periodic, ``(0,)``)."""
     return domain_task(DOMAINS["pendulum"])
 
 
@@ -291,16 +288,6 @@ def train(sampler: str, budget: int, seed: int, out: Path, guess: str = "plan", 
     return target
 
 
-def make_mpc(network: Any, horizon: int, dt: float | None = None) -> Any:
-    """The pendulum's ``LimitedLookaheadMPC(task, network, horizon=N)`` with the task's defaults (the condensed
-    ``shooting`` solver for N <= 10, the ``lqr`` guard ``Vhat + l_f``); ``dt`` None: the task's control period
-    (0.02 s). For ``trace``; ``tune`` and ``evaluate`` deploy through :func:`suite_controller`."""
-    from seagul_control.mpc import LimitedLookaheadMPC, MPCOptions
-
-    options = MPCOptions() if dt is None else MPCOptions(dt=dt)
-    return LimitedLookaheadMPC(pendulum_task(), network, horizon=horizon, options=options)
-
-
 def time_to_go(mpc: Any, tau_v: float, countdown: float) -> Any:
     """The MPC's time to go at episode time ``t`` (module docstring): ``max(countdown - t, tau_v + N dt)``; with
     ``countdown = 0`` the constant ``tau_v + N dt``."""
@@ -321,15 +308,15 @@ def deployment(
     domain: Domain, horizon: int, tau_v: float, dt: float, hold: int | None, path_bounds: str | None = None
 ) -> Any:
     """The :class:`~seagul_learn.dmc_eval.DMCDeployment` of a setting: ``hold`` None decides every ``dt`` (``dt`` a
-    multiple of the control period), else every ``hold`` control steps over a lookahead of ``dt`` intervals; the
-    path bounds as the domain deploys them unless ``path_bounds`` says."""
-    from seagul_learn.dmc_eval import DMCDeployment
-
+    multiple of the control period), else every ``hold`` control steps over a lookahead of ``dt`` intervals;
+    everything else (the path bounds unless ``path_bounds`` says) as the domain deploys it."""
     period = make_task(domain.task).control_period
     steps = round(dt / period) if hold is None else hold
     interval = None if math.isclose(steps * period, dt) else dt
     bounds = domain.deployment.path_bounds if path_bounds is None else path_bounds
-    return DMCDeployment(horizon=horizon, time_to_go=tau_v, hold=steps, dt=interval, path_bounds=bounds)
+    return dataclasses.replace(
+        domain.deployment, horizon=horizon, time_to_go=tau_v, hold=steps, dt=interval, path_bounds=bounds
+    )
 
 
 def suite_controller(domain: Domain, network: Any, setting: Any, countdown: float = 0.0) -> Any:
@@ -448,8 +435,10 @@ def trace(path: Path, horizon: int, tau_v: float, seed: int, every: int = 50) ->
     ``every`` control steps (1 s by default)."""
     from seagul_control.dmc import run_dmc_episode
 
-    mpc = make_mpc(load_network(path), horizon)
-    episode = run_dmc_episode(ENV_ID, controller(mpc, tau_v), seed, record=True)
+    d = DOMAINS["pendulum"]
+    setting = deployment(d, horizon, tau_v, pendulum_task().control_period, None)
+    ctrl = suite_controller(d, load_network(path), setting)
+    episode = run_dmc_episode(ENV_ID, ctrl, seed, record=True)
     states, actions = np.asarray(episode.states), np.asarray(episode.actions).reshape(-1)
     return {
         "network": path.name,
@@ -592,7 +581,7 @@ def run_dir(path: Path) -> Path:
     return Path("/tmp") / path.stem
 
 
-def training_record(path: Path, domain: Domain | None = None) -> dict[str, Any]:
+def training_record(path: Path, domain: Domain) -> dict[str, Any]:
     """The training run's wall time, failed solves and (pendulum) :func:`labels`, when its output directory
     (``run_dir``) is still there."""
     out: dict[str, Any] = {}
@@ -604,7 +593,7 @@ def training_record(path: Path, domain: Domain | None = None) -> dict[str, Any]:
         last = metrics["metrics"][-1]
         out["failed_solves"] = int(last["failures"])
         out["budget_solves"] = int(last["solves"])
-    if (directory / "dataset" / "records").is_dir() and (domain is None or domain.name == "pendulum"):
+    if (directory / "dataset" / "records").is_dir() and domain.name == "pendulum":
         out["labels"] = labels(directory)
     return out
 
