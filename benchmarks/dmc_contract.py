@@ -7,6 +7,8 @@ runs too long to repeat there, each written by its own benchmark on the same res
   MPC, one network per training seed, each scored on the same reset seeds);
 * ``full_horizon`` from ``dmc_reference.json`` (``benchmarks/bench_dmc_reference.py``: the whole-episode
   trajectory optimization with the true model, re-planned);
+* ``optimum`` from ``dmc_optimum.json`` (``benchmarks/bench_dmc_optimum.py``: the pendulum's optimum by dynamic
+  programming on a grid of its two-dimensional state; ``None`` for the other tasks);
 * ``sac`` and ``ppo`` from ``dmc_rl.json`` when it exists (``None`` until those runs are made);
 * ``published`` from ``dmc_published.json`` (each number's method, score, budget in environment steps, source).
 
@@ -15,12 +17,13 @@ A block whose source file does not exist, or has no entry for the env, is ``None
 Each task's block (keys are the suite's short names, ``"pendulum-swingup"``)::
 
     {"env_id", "classical": [rows of bench_dmc.py], "learned_mpc": {...} | None, "full_horizon": {...} | None,
-     "sac": {...} | None, "ppo": {...} | None, "published": [...]}
+     "optimum": {...} | None, "sac": {...} | None, "ppo": {...} | None, "published": [...]}
 
 ``learned_mpc``: ``score_mean`` and ``score_std`` over every (network, reset seed) episode, ``seeds`` the number of
 networks (training seeds), ``episodes`` the reset seeds per network, ``solves`` each network's trajectory-optimization
 budget, ``horizon``, ``median_ms``/``p95_ms`` (the medians over the networks), ``network`` the first network's file
-and ``networks`` every network's own row (file, solves, scores, mean).
+and ``networks`` every network's own row (file, solves, scores, mean); ``wide`` (or None) the same networks on a wider
+set of reset seeds (``evaluate --wide-seeds``).
 """
 
 from __future__ import annotations
@@ -80,6 +83,15 @@ def learned_block(env_id: str, results: Path = RESULTS) -> dict[str, Any] | None
             {"network": row["network"], "solves": row["solves"], "mean": row["mean"], "scores": row["scores"]}
             for row in rows
         ],
+        "wide": None
+        if not block.get("wide")
+        else {
+            "score_mean": block["wide"]["score_mean"],
+            "score_std": block["wide"]["score_std"],
+            "episodes": len(block["wide"]["seeds"]),
+            "reset_seeds": block["wide"]["seeds"],
+            "networks": [{"network": r["network"], "mean": r["mean"]} for r in block["wide"]["rows"]],
+        },
         "source": _source("dmc_learned.json"),
     }
 
@@ -98,6 +110,33 @@ def reference_block(env_id: str, results: Path = RESULTS) -> dict[str, Any] | No
         "median_ms": entry.get("decision_ms_median"),
         "p95_ms": entry.get("decision_ms_p95"),
         "source": _source("dmc_reference.json"),
+    }
+
+
+def optimum_block(env_id: str, results: Path = RESULTS) -> dict[str, Any] | None:
+    """The grid optimum's block from ``dmc_optimum.json`` (``score_mean``, ``score_std``, ``episodes`` and
+    ``reset_seeds`` on the evaluation seeds; ``wide``: the same on the wider set, beside ``energy_wide``, the
+    classical swing-up on those episodes; ``spec``: the grid), or None."""
+    data = _load("dmc_optimum.json", results)
+    entry = (data or {}).get("tasks", {}).get(env_id)
+    if not entry:
+        return None
+
+    def summary(part: dict[str, Any]) -> dict[str, Any]:
+        return {
+            "score_mean": part["mean"],
+            "score_std": part["std"],
+            "episodes": len(part["scores"]),
+            "reset_seeds": part["seeds"],
+        }
+
+    return {
+        **summary(entry),
+        "wide": summary(entry["wide"]),
+        "energy_wide": summary(entry["energy_wide"]),
+        "spec": entry["spec"],
+        "median_ms": entry.get("decision_ms_median"),
+        "source": _source("dmc_optimum.json"),
     }
 
 
@@ -133,6 +172,7 @@ def assemble(classical: dict[str, list[dict[str, Any]]], results: Path = RESULTS
             "classical": rows,
             "learned_mpc": learned_block(env_id, results),
             "full_horizon": reference_block(env_id, results),
+            "optimum": optimum_block(env_id, results),
             "sac": rl_block(env_id, "sac", results),
             "ppo": rl_block(env_id, "ppo", results),
             "published": published_block(env_id, results),

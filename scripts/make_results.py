@@ -143,6 +143,12 @@ CURRENT: dict[str, tuple[str, str]] = {
         "times, failed re-solves",
         "python benchmarks/bench_dmc_reference.py",
     ),
+    "dmc_optimum.json": (
+        "the pendulum's optimum: value iteration on grids of its state (three refinements) with MuJoCo's step and "
+        "dm_control's reward, its greedy controller scored on reset seeds 0-9 and 0-99, and the energy swing-up on "
+        "0-99",
+        "python benchmarks/bench_dmc_optimum.py --json benchmarks/results/dmc_optimum.json",
+    ),
     "dmc_learned.json": (
         "the learned short-horizon MPC on the suite's pendulum: five networks (uniform starts, 1,500 solves each) "
         "scored on reset seeds 0-9, the tuning lines its setting was chosen by, and label-guess variants",
@@ -503,7 +509,8 @@ def readme_dmc() -> str:
                                          f"({learned['seeds']} seeds, N = {learned['horizon']}, "
                                          f"{learned['solves']:,} solves, "
                                          f"{learned['median_ms']:.1f} ms)"),
-            "-" if ref is None else f"{ref['score_mean']:.0f} ± {ref['score_std']:.0f}",
+            ("-" if ref is None else f"{ref['score_mean']:.0f} ± {ref['score_std']:.0f}")
+            + ("" if not b.get("optimum") else f" (optimum {b['optimum']['score_mean']:.0f})"),
             f"{classical['mean']:.0f} ± {classical['std']:.0f} ({DMC_LABELS.get(classical['controller'], '')})",
             *["-" if b.get(algo) is None else f"{b[algo]['score_mean']:.0f} ({b[algo]['env_steps'] / 1e6:g} M)"
               for algo in ("sac", "ppo")],
@@ -751,6 +758,11 @@ def section_dmc() -> str:
     if reference:
         ref = {env_id.split("/")[-1].removesuffix("-v0"): b for env_id, b in reference["tasks"].items()}
         rows.append(["full-horizon reference (true model, re-planned)", *[_dmc_cell(ref.get(t)) for t in DMC_TASKS]])
+    optimum = {t: data[t].get("optimum") for t in DMC_TASKS if data[t].get("optimum")}
+    if optimum:
+        rows.append(["**optimum** (dynamic programming on a grid of the state; the pendulum only)", *[
+            "" if t not in optimum else f"**{optimum[t]['score_mean']:.0f} ± {optimum[t]['score_std']:.0f}**"
+            for t in DMC_TASKS]])
     for controller, per_task in rows_by.items():
         rows.append([DMC_LABELS.get(controller, controller), *[_dmc_cell(per_task.get(t)) for t in DMC_TASKS]])
     learned = (RESULTS / "dmc_learned.json").exists() and load("dmc_learned.json")
@@ -782,8 +794,39 @@ def section_dmc() -> str:
                 "each number's source and budget in environment steps):",
                 "",
                 table(["task", "method", "score", "env steps", "observations", "seeds", "source"], prow)]
+    out += dmc_wide(data)
     out += dmc_animations()
     return "\n".join(out)
+
+
+def dmc_wide(data: Mapping[str, Any]) -> list[str]:
+    """The pendulum on 100 reset seeds: the optimum, the learned MPC and the energy swing-up beside the published
+    means (``dmc.json``'s ``optimum`` and ``learned_mpc.wide`` blocks, when present)."""
+    block = data.get("pendulum-swingup") or {}
+    optimum, learned = block.get("optimum"), (block.get("learned_mpc") or {}).get("wide")
+    if not optimum:
+        return []
+    wide, energy = optimum["wide"], optimum["energy_wide"]
+    seeds = f"{wide['reset_seeds'][0]}-{wide['reset_seeds'][-1]}"
+    best = max(block["published"], key=lambda p: p["score"]) if block["published"] else None
+    rows = [["optimum (grid dynamic programming)", f"{wide['score_mean']:.1f} ± {wide['score_std']:.0f}",
+             f"{wide['episodes']}"]]
+    if learned:
+        rows.append([f"learned MPC ({len(learned['networks'])} networks)",
+                     f"{learned['score_mean']:.1f} ± {learned['score_std']:.0f}",
+                     f"{len(learned['networks'])} x {learned['episodes']}"])
+    rows.append(["energy shaping + LQR catch", f"{energy['score_mean']:.1f} ± {energy['score_std']:.0f}",
+                 f"{energy['episodes']}"])
+    if best:
+        rows.append([f"{best['method']} (published)", f"{best['score']:.0f}", "their evaluation episodes"])
+    spec = optimum["spec"]
+    return ["", f"**How far can the pendulum go?** Its state is two numbers, so its optimum is computed, not "
+            f"searched for: value iteration on a {spec['angle_cells']} x {spec['velocity_points']} grid of (angle, "
+            f"velocity) with MuJoCo's step and dm_control's reward ({spec['actions']} torques per backup, "
+            f"{spec['backups']} backups; `seagul_control.grid_optimum`, `benchmarks/results/dmc_optimum.json`, "
+            "refined until the score stops changing). Ten episodes are too few to compare with published means "
+            "(their standard error is about 30 points), so the table adds reset seeds "
+            f"{seeds}:", "", table(["controller", "score", "episodes"], rows)]
 
 
 def dmc_animations() -> list[str]:

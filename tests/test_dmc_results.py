@@ -65,6 +65,7 @@ def test_the_blocks_are_what_their_source_files_say(dmc: dict[str, Any]) -> None
         env_id = dmc[name]["env_id"]
         assert dmc[name]["learned_mpc"] == dmc_contract.learned_block(env_id)
         assert dmc[name]["full_horizon"] == dmc_contract.reference_block(env_id)
+        assert dmc[name]["optimum"] == dmc_contract.optimum_block(env_id)
         assert dmc[name]["published"] == dmc_contract.published_block(env_id)
 
 
@@ -92,7 +93,16 @@ def test_assemble_pools_the_networks_and_leaves_missing_runs_empty(tmp_path: Pat
         "dmc_reference.json",
         {"tasks": {env_id: {"mean": 850.0, "std": 10.0, "scores": [840.0, 860.0], "seeds": [0, 1]}}},
     )
+    part = {"mean": 830.0, "std": 5.0, "scores": [825.0, 835.0], "seeds": [0, 1]}
+    _write(
+        tmp_path,
+        "dmc_optimum.json",
+        {"tasks": {env_id: {**part, "wide": part | {"mean": 842.0}, "energy_wide": part, "spec": {"backups": 9}}}},
+    )
     blocks = dmc_contract.assemble({env_id: [], "dm_control/acrobot-swingup-v0": []}, tmp_path)
+    optimum = blocks["pendulum-swingup"]["optimum"]
+    assert optimum["score_mean"] == 830.0 and optimum["episodes"] == 2 and optimum["wide"]["score_mean"] == 842.0
+    assert optimum["spec"] == {"backups": 9} and blocks["acrobot-swingup"]["optimum"] is None
     learned = blocks["pendulum-swingup"]["learned_mpc"]
     assert learned["score_mean"] == pytest.approx(765.0) and learned["seeds"] == 2 and learned["episodes"] == 2
     assert learned["score_std"] == pytest.approx(np.std([800, 820, 700, 740]), abs=1e-3)
