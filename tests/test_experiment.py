@@ -515,6 +515,7 @@ presets:
 """
 
 
+@pytest.mark.slow  # a second whole smoke run (~30 s); the recipe book's configs are checked in test_layers.py
 def test_reproduce_runs_the_shipped_recipe_through_the_same_pipeline(tmp_path: Path, monkeypatch) -> None:
     """``seagul reproduce acrobot --methods shipped,uniform`` with a recipe file of 4-solve recipes (registered for
     the acrobot): the shipped recipe trains, is evaluated and compared beside the uniform sampler on its schedule."""

@@ -288,6 +288,7 @@ def test_later_calls_reuse_the_actor_pool(local_ray: Any) -> None:
             time.sleep(0.2)
 
 
+@pytest.mark.slow  # ~30 s of starting a second Ray node; the backend's results are checked by the local tests above
 def test_two_node_cluster_spreads_the_pool_over_both_nodes() -> None:
     """Head + one worker node, 1 CPU each, on this machine: two actors must land one per node."""
     from ray.cluster_utils import Cluster
