@@ -23,6 +23,10 @@ Each ``--domain`` (:data:`DOMAINS`) is one suite env with its training recipe an
   (:mod:`seagul_envs.tasks.dmc.pendulum`: cost ``1 - cos(hinge) + 0.01 u^2``, 10 s to go, 100 intervals of 0.1 s)
   from the task's own starts (the suite's: any hinge angle at rest), 2 x 64 network, 50 solves per round, one
   worker;
+* ``pendulum_box``: the same task with the cart-pole's recipe: starts drawn uniformly over the whole swing
+  (``train_box``: hinge +-pi, hinge velocity +-8 rad/s, the fastest an optimal swing-up moves is about 9 rad/s),
+  100 solves per round, two workers; its networks are ``dmc_pendulum_uniform-box_b<budget>_seed<k>.pt``
+  (``Domain.network_tag``);
 * ``cartpole`` (``dm_control/cartpole-swingup-v0``): ``V(x, tau)`` of ``dmc_cartpole`` (cost ``1 - r``, the
   suite's smooth reward itself, 4 s to go, 80 intervals of 0.05 s) from starts drawn uniformly over a box of the
   whole swing (``train_box``: slider +-1.2 m, hinge +-pi, slider velocity +-3 m/s, hinge velocity +-7 rad/s, what an
@@ -51,13 +55,16 @@ quality is the weak point of this recipe (docs/experiments/dmc-learned.md).
 ``hold`` control steps, the cart-pole's rail bound a penalty in the lookahead) in dm_control's own episodes
 (:func:`seagul_control.dmc.run_dmc_episode`). ``--dts`` are the MPC's intervals; without ``--holds`` each ``dt`` is
 also the decision period (the pendulum: 0.02 s, its control period); ``--holds 1`` decides at every control step
-over intervals of ``dt`` (the cart-pole: 0.05 s intervals, decisions every 0.01 s). ``evaluate`` writes (and merges
-into an existing file, one block per env) ``{"tasks": {env_id: {"rows": [{"controller", "scores", "mean", "std",
-"seeds", "decision_ms_median", "decision_ms_p95", "hold", "solves", "network", "train_wall_s", "failed_solves",
-"budget_solves", "labels"}], "seeds", "tuning_seeds", "params", "tuned_on", "tuning", "command", "machine",
-...}}, "variants": {env_id: {"rows": [...]}}}``: the rows of ``benchmarks/results/dmc.json`` plus the network's
-file, training budget and (when its run directory is still there) training wall time, failed solves and (pendulum)
-``labels``, and the tuning lines the setting was chosen by.
+over intervals of ``dt`` (the cart-pole: 0.05 s intervals, decisions every 0.01 s; the pendulum: 0.1 s intervals,
+decisions every 0.02 s). ``evaluate`` writes (and merges into an existing file, one block per env) ``{"tasks":
+{env_id: {"rows": [{"controller", "scores", "mean", "std", "seeds", "decision_ms_median", "decision_ms_p95",
+"hold", "solves", "network", "train_wall_s", "failed_solves", "budget_solves", "labels"}], "seeds",
+"tuning_seeds", "params", "tuned_on", "wide", "tuning", "command", "machine", ...}}, "variants": {env_id: {"rows":
+[...]}}}``: the rows of ``benchmarks/results/dmc.json`` plus the network's file, training budget and (when its
+run directory is still there) training wall time, failed solves and (pendulum) ``labels``, the tuning lines the
+setting was chosen by, and (``--wide-seeds``, else None) ``wide``: ``{"seeds", "rows": [{"network", "scores",
+"mean", "std"}], "score_mean", "score_std"}``, every network on a wider set of reset seeds (the published scores are
+means over many episodes; ten of them carry about 30 points of noise).
 
 The time to go [choice]: the suite's episode is 1,000 control steps (the pendulum 20 s, the cart-pole 10 s) scored
 at every step, while the network is the value of a finite problem ``V(x, tau)`` (``tau <= 10`` s, the cart-pole's
@@ -114,6 +121,8 @@ class Domain:
     workers: int
     deployment: Any
     """The :class:`~seagul_learn.dmc_eval.DMCDeployment` ``evaluate`` uses unless told otherwise."""
+    network_tag: str = ""
+    """Added to the sampler's name in the committed networks' file names (recipes of one task apart)."""
 
 
 def _domains() -> dict[str, Domain]:
@@ -141,6 +150,18 @@ def _domains() -> dict[str, Domain]:
             solves_per_round=50,
             workers=1,
             deployment=DEFAULT_DEPLOYMENTS[pendulum],
+        ),
+        "pendulum_box": Domain(
+            name="pendulum_box",
+            env_id=pendulum,
+            task="dmc_pendulum",
+            solver_options={"plan": ["ipopt:hold", "ipopt:line", "ipopt:goal"]},
+            train_box=((-math.pi, -8.0), (math.pi, 8.0)),
+            hidden=(64, 64),
+            solves_per_round=100,
+            workers=2,
+            deployment=DEFAULT_DEPLOYMENTS[pendulum],
+            network_tag="box",
         ),
         "cartpole": Domain(
             name="cartpole",
@@ -187,8 +208,9 @@ PUMPING_KICKS = (1.0, -1.0)
 
 def network_path(sampler: str, budget: int, seed: int, guess: str = "plan", domain: str = "pendulum") -> Path:
     """The committed network of a training run (the sparse cart-pole deploys the cart-pole's: one task, one value)."""
-    label = sampler if guess == "plan" else f"{sampler}-{guess}"
-    return NETWORKS / f"{DOMAINS[domain].task}_{label}_b{budget}_seed{seed}.pt"
+    d = DOMAINS[domain]
+    label = sampler + (f"-{d.network_tag}" if d.network_tag else "") + ("" if guess == "plan" else f"-{guess}")
+    return NETWORKS / f"{d.task}_{label}_b{budget}_seed{seed}.pt"
 
 
 def train_config(sampler: str, budget: int, seed: int, domain: str = "pendulum") -> Any:
@@ -570,10 +592,31 @@ def evaluate(
         "countdown": countdown,
         **row,
         "solves": solves,
-        "network": str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path),
+        "network": _relative(path),
         "guess": next((g for g in GUESSES[1:] if f"-{g}_" in path.name), "plan"),
         **training_record(path, d),
     }
+
+
+def wide(networks: list[Path], domain: Domain, setting: Any, seeds_text: str) -> dict[str, Any]:
+    """Every network's scores on the reset seeds ``seeds_text`` (``--wide-seeds``: more episodes than the
+    evaluation seeds, for a mean that can be set beside published means over many episodes)."""
+    seeds = parse_seeds(seeds_text)
+    rows = []
+    for path in networks:
+        row = score(domain, load_network(path), setting, seeds)
+        rows.append({"network": _relative(path), **{k: row[k] for k in ("scores", "mean", "std")}})
+    pooled = [s for row in rows for s in row["scores"]]
+    return {
+        "seeds": seeds,
+        "rows": rows,
+        "score_mean": round(float(np.mean(pooled)), 3),
+        "score_std": round(float(np.std(pooled)), 3),
+    }
+
+
+def _relative(path: Path) -> str:
+    return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
 
 
 def run_dir(path: Path) -> Path:
@@ -593,7 +636,7 @@ def training_record(path: Path, domain: Domain) -> dict[str, Any]:
         last = metrics["metrics"][-1]
         out["failed_solves"] = int(last["failures"])
         out["budget_solves"] = int(last["solves"])
-    if (directory / "dataset" / "records").is_dir() and domain.name == "pendulum":
+    if (directory / "dataset" / "records").is_dir() and domain.task == "dmc_pendulum":
         out["labels"] = labels(directory)
     return out
 
@@ -646,6 +689,11 @@ def main(argv: list[str] | None = None) -> None:
     ev.add_argument("--hold", type=int, default=None, help="control steps per decision (default: dt's)")
     ev.add_argument("--countdown", type=float, default=0.0)
     ev.add_argument("--seeds", default="0-9")
+    ev.add_argument(
+        "--wide-seeds",
+        default=None,
+        help="also score every network on these reset seeds (e.g. 0-99), kept under the block's 'wide'",
+    )
     ev.add_argument("--json", type=Path, default=None)
     ev.add_argument("--tuning", type=Path, nargs="*", default=[], help="tune's JSON lines, kept in the result")
     ev.add_argument(
@@ -720,6 +768,7 @@ def main(argv: list[str] | None = None) -> None:
                 "train_box": None if domain.train_box is None else [list(b) for b in domain.train_box],
             },
             "tuned_on": None if args.tuned_on is None else str(args.tuned_on),
+            "wide": None if args.wide_seeds is None else wide(args.network, domain, setting, args.wide_seeds),
             "tuning": [
                 {key: line.get(key, 0.0 if key == "countdown" else None) for key in TUNE_KEYS}
                 for path in args.tuning

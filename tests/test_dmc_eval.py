@@ -3,6 +3,7 @@ deployment's settings reach the MPC; bad input names the problem."""
 
 from __future__ import annotations
 
+import dataclasses
 import json
 
 import numpy as np
@@ -11,7 +12,7 @@ import pytest
 pytest.importorskip("dm_control.suite", reason="dm_control is optional: pip install 'seagul[dmc]'")
 pytest.importorskip("shimmy", reason="shimmy wraps dm_control for Gymnasium: pip install 'seagul[dmc]'")
 
-from seagul_control.dmc import make_dmc_env, run_dmc_episode
+from seagul_control.dmc import dmc_env_id, make_dmc_env, run_dmc_episode
 from seagul_learn.cli import main
 from seagul_learn.dmc_eval import DEFAULT_DEPLOYMENTS, DMCDeployment, learned_dmc_controller
 from seagul_learn.value_network import ValueNetwork
@@ -45,9 +46,11 @@ def test_cli_prints_the_contract_json_last(network_file: str, capsys: pytest.Cap
     assert result["score_std"] == pytest.approx(np.std(result["scores"]), abs=1e-3)
 
     # The same controller stepped through dm_control by the scoring runner gives the same return (deterministic).
-    controller = learned_dmc_controller(
-        "pendulum-swingup", ValueNetwork.load(network_file), DMCDeployment(2, 1.0, 10), jit=False
+    # The CLI's flags replace those fields of the env's deployment and keep the rest (its lookahead interval).
+    setting = dataclasses.replace(
+        DEFAULT_DEPLOYMENTS[dmc_env_id("pendulum-swingup")], horizon=2, time_to_go=1.0, hold=10
     )
+    controller = learned_dmc_controller("pendulum-swingup", ValueNetwork.load(network_file), setting, jit=False)
     env = make_dmc_env("pendulum-swingup")
     try:
         episode = run_dmc_episode("pendulum-swingup", controller, 3, hold=10, env=env)
