@@ -57,14 +57,15 @@ quality is the weak point of this recipe (docs/experiments/dmc-learned.md).
 also the decision period (the pendulum: 0.02 s, its control period); ``--holds 1`` decides at every control step
 over intervals of ``dt`` (the cart-pole: 0.05 s intervals, decisions every 0.01 s; the pendulum: 0.1 s intervals,
 decisions every 0.02 s). ``evaluate`` writes (and merges into an existing file, one block per env) ``{"tasks":
-{env_id: {"rows": [{"controller", "scores", "mean", "std", "seeds", "decision_ms_median", "decision_ms_p95",
-"hold", "solves", "network", "train_wall_s", "failed_solves", "budget_solves", "labels"}], "seeds",
-"tuning_seeds", "params", "tuned_on", "wide", "tuning", "command", "machine", ...}}, "variants": {env_id: {"rows":
-[...]}}}``: the rows of ``benchmarks/results/dmc.json`` plus the network's file, training budget and (when its
-run directory is still there) training wall time, failed solves and (pendulum) ``labels``, the tuning lines the
-setting was chosen by, and (``--wide-seeds``, else None) ``wide``: ``{"seeds", "rows": [{"network", "scores",
-"mean", "std"}], "score_mean", "score_std"}``, every network on a wider set of reset seeds (the published scores are
-means over many episodes; ten of them carry about 30 points of noise).
+{env_id: {"rows": [{"controller", "scores", "mean", "std", "seeds", "decision_ms_median", "decision_ms_p95", "hold",
+"solves", "network", "train_wall_s", "failed_solves", "budget_solves", "labels"}], "seeds", "tuning_seeds", "params",
+"tuned_on", "wide", "tuning", "command", "machine", ...}}, "variants": {env_id: {"rows": [...], "tuning": [...]}}}``:
+the rows of ``benchmarks/results/dmc.json`` plus the network's file, training budget and (when its run directory is
+still there) training wall time, failed solves and (pendulum) ``labels``, the tuning lines the setting was chosen by
+(a block of other networks that ``evaluate`` replaces moves under ``"variants"``: each row with its command and its
+``wide`` scores, its tuning lines with the network they were measured on), and (``--wide-seeds``, else None) ``wide``:
+``{"seeds", "rows": [{"network", "scores", "mean", "std"}], "score_mean", "score_std"}``, every network on a wider set
+of reset seeds (the published scores are means over many episodes; ten of them carry about 30 points of noise).
 
 The time to go [choice]: the suite's episode is 1,000 control steps (the pendulum 20 s, the cart-pole 10 s) scored
 at every step, while the network is the value of a finite problem ``V(x, tau)`` (``tau <= 10`` s, the cart-pole's
@@ -615,6 +616,13 @@ def wide(networks: list[Path], domain: Domain, setting: Any, seeds_text: str) ->
     }
 
 
+def _wide_of(block: dict[str, Any], network: str) -> dict[str, Any] | None:
+    """The ``wide`` row of ``network`` in an evaluated block (its scores on the wider seeds), or None."""
+    wide_block = block.get("wide") or {}
+    row = next((r for r in wide_block.get("rows", []) if r["network"] == network), None)
+    return None if row is None else {"seeds": wide_block["seeds"], **row}
+
+
 def _relative(path: Path) -> str:
     return str(path.relative_to(ROOT)) if path.is_relative_to(ROOT) else str(path)
 
@@ -754,7 +762,11 @@ def main(argv: list[str] | None = None) -> None:
         block = {
             "rows": rows,
             "seeds": parse_seeds(args.seeds),
-            "tuning_seeds": list(TUNING_SEEDS),
+            # The reset seeds the tuning lines were measured on (TUNING_SEEDS when none are given).
+            "tuning_seeds": sorted(
+                {seed for path in args.tuning for line in read_tuning(path) for seed in line["seeds"]}
+            )
+            or list(TUNING_SEEDS),
             "params": {
                 "horizon": args.horizon,
                 "dt": args.dt,
@@ -789,6 +801,17 @@ def main(argv: list[str] | None = None) -> None:
             variants = result.setdefault("variants", {}).setdefault(domain.env_id, {"rows": []})
             variants["rows"] += [row | {key: block[key] for key in ("command", "wall_s", "machine")} for row in rows]
         else:
+            replaced = result["tasks"].get(domain.env_id)
+            if replaced and {r["network"] for r in replaced["rows"]} != {r["network"] for r in rows}:
+                # Other networks' block: its rows move under "variants" (with their own command), not lost.
+                variants = result.setdefault("variants", {}).setdefault(domain.env_id, {"rows": []})
+                keep = {key: replaced.get(key) for key in ("command", "wall_s", "machine")}
+                variants["rows"] += [
+                    row | keep | {"wide": _wide_of(replaced, row["network"])} for row in replaced["rows"]
+                ]
+                variants.setdefault("tuning", []).extend(
+                    line | {"tuned_on": replaced.get("tuned_on")} for line in replaced.get("tuning", [])
+                )
             result["tasks"][domain.env_id] = block
         text = json.dumps(result, indent=1)
         if args.json is not None:

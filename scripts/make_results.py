@@ -150,9 +150,10 @@ CURRENT: dict[str, tuple[str, str]] = {
         "python benchmarks/bench_dmc_optimum.py --json benchmarks/results/dmc_optimum.json",
     ),
     "dmc_learned.json": (
-        "the learned short-horizon MPC on the suite's pendulum: five networks (uniform starts, 1,500 solves each) "
-        "scored on reset seeds 0-9, the tuning lines its setting was chosen by, and label-guess variants",
-        "python benchmarks/bench_dmc_learned.py evaluate NETWORKS --solves ... --horizon 5 --tau 5 --seeds 0-9 "
+        "the learned short-horizon MPC on the suite's pendulum and cart-pole: five networks per task scored on "
+        "reset seeds 0-9 (the pendulum's also on 0-99), the tuning lines each setting was chosen by, and the "
+        "earlier recipes' rows under variants",
+        "python benchmarks/bench_dmc_learned.py evaluate NETWORKS --domain DOMAIN --solves ... --seeds 0-9 "
         "--json benchmarks/results/dmc_learned.json",
     ),
     "networks/": ("value networks: the shipped ones and one representative seed of each compared sampler", ""),
