@@ -34,15 +34,14 @@ import time
 from pathlib import Path
 from typing import Any
 
-import numpy as np
 from tqdm import tqdm
 
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._common import machine, parse_seeds  # noqa: E402
+from benchmarks.bench_dmc import score_row  # noqa: E402
 from seagul_control import spong  # noqa: E402
-from seagul_control.dmc import make_dmc_env, run_dmc_episode  # noqa: E402
 from seagul_control.grid_optimum import GridOptimum, GridSpec  # noqa: E402
 
 ENV_ID = "dm_control/pendulum-swingup-v0"
@@ -58,26 +57,11 @@ def parse_grid(text: str) -> GridSpec:
     return GridSpec(angle_cells=a, velocity_points=v, actions=u)
 
 
-def episodes(controller: Any, seeds: list[int], label: str) -> dict[str, Any]:
-    """``controller`` on each reset seed: scores, their mean and std, and the decision times' medians."""
-    env = make_dmc_env(ENV_ID)
-    scores, medians, p95s = [], [], []
-    try:
-        for seed in tqdm(seeds, desc=label, leave=False, file=sys.stderr):
-            episode = run_dmc_episode(ENV_ID, controller, seed, env=env)
-            scores.append(round(float(episode.score), 3))
-            medians.append(episode.decision_ms_median)
-            p95s.append(episode.decision_ms_p95)
-    finally:
-        env.close()
-    return {
-        "seeds": list(seeds),
-        "scores": scores,
-        "mean": round(float(np.mean(scores)), 3),
-        "std": round(float(np.std(scores)), 3),
-        "decision_ms_median": round(float(np.median(medians)), 4),
-        "decision_ms_p95": round(float(np.median(p95s)), 4),
-    }
+def episodes(controller: Any, seeds: list[int]) -> dict[str, Any]:
+    """``controller`` on each reset seed: :func:`benchmarks.bench_dmc.score_row`'s scores, mean, std and decision
+    times (every seed's episode from one controller: the grid policy and the energy swing-up keep no state)."""
+    row = score_row(ENV_ID, "", lambda _seed: controller, seeds)
+    return {key: row[key] for key in ("seeds", "scores", "mean", "std", "decision_ms_median", "decision_ms_p95")}
 
 
 def solve(spec: GridSpec) -> tuple[GridOptimum, float]:
@@ -98,8 +82,8 @@ def benchmark(grids: list[GridSpec], seeds: list[int], wide: list[int]) -> dict[
     refinement, last = [], None
     for spec in grids:
         optimum, solve_s = solve(spec)
-        main = episodes(optimum, seeds, "episodes")
-        broad = episodes(optimum, wide, "wide episodes")
+        main = episodes(optimum, seeds)
+        broad = episodes(optimum, wide)
         refinement.append(
             {"spec": dataclasses.asdict(spec), "mean": main["mean"], "wide_mean": broad["mean"], "solve_s": solve_s}
         )
@@ -107,7 +91,7 @@ def benchmark(grids: list[GridSpec], seeds: list[int], wide: list[int]) -> dict[
         last = (spec, main, broad, solve_s)
     assert last is not None
     spec, main, broad, solve_s = last
-    energy = episodes(spong.PendulumEnergyController(spong.PendulumSwingUpParams()), wide, "energy")
+    energy = episodes(spong.PendulumEnergyController(spong.PendulumSwingUpParams()), wide)
     return {
         "controller": "grid optimum",
         "spec": dataclasses.asdict(spec),

@@ -47,6 +47,17 @@ def test_each_backup_is_bellmans_recursion_evaluated_independently() -> None:
             break
 
 
+def test_the_grid_reward_is_the_tasks_suite_reward() -> None:
+    from seagul_envs.tasks.dmc.pendulum import dmc_pendulum_reward
+
+    optimum = GridOptimum(SMALL)
+    x = np.random.default_rng(1).uniform([-4.0, -9.0], [4.0, 9.0], size=(400, 2))
+    x[:5, 0] = [0.0, np.radians(7.9), -np.radians(7.9), np.radians(8.1), 2 * np.pi]  # inside, edges, a full turn
+    expected = [dmc_pendulum_reward(optimum.task.params, row, np.zeros(1)) for row in x]
+    np.testing.assert_array_equal(optimum._reward(x.T), expected)
+    assert expected[:5] == [1.0, 1.0, 1.0, 0.0, 1.0]
+
+
 def test_values_count_rewarded_steps() -> None:
     optimum = GridOptimum(SMALL)
     last = np.zeros((SMALL.angle_cells, SMALL.velocity_points))
