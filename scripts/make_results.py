@@ -98,6 +98,11 @@ CURRENT: dict[str, tuple[str, str]] = {
         "python benchmarks/bench_param_adversary.py --workers 1 --closed-loop --update "
         "benchmarks/results/param_adversary.json",
     ),
+    "robust_deployment.json": (
+        "the shipped robust MPC's deployment settings (lookahead, iterations, guard, the estimate's prior and box, "
+        "the robot known) for every seed's network, on validation starts x robots",
+        "python benchmarks/bench_robust_deployment.py --json benchmarks/results/robust_deployment.json",
+    ),
     "rl_baselines.json": (
         "SB3 PPO and SAC set up by the book, 5 seeds per task: validation curves, the selected models on the grid "
         "and the held-out starts, the shipped model; the acrobot PPO sweep (`sweep`)",
@@ -774,6 +779,14 @@ def section_dmc() -> str:
                      f"{r['solves']:,} solves (`{r['network'].split('/')[-1]}`, {r['decision_ms_median']:.2f} ms "
                      "median step)")
             rows.append([label, *[_dmc_cell(r) if t == name else "" for t in DMC_TASKS]])
+    for algo in ("sac", "ppo"):
+        runs = {t: data[t][algo] for t in DMC_TASKS if data[t].get(algo)}
+        if runs:
+            steps = sorted({r["env_steps"] for r in runs.values()})
+            rows.append([f"{algo.upper()} (SB3, {'/'.join(f'{s / 1e6:g}' for s in steps)} M steps, each seed's "
+                         "model selected on validation episodes; mean ± std over seeds)", *[
+                             "" if t not in runs else f"{runs[t]['score_mean']:.0f} ± {runs[t]['score_std']:.0f} "
+                             f"({runs[t]['seeds']} seeds)" for t in DMC_TASKS]])
     pooled = {t: data[t]["learned_mpc"] for t in DMC_TASKS if data[t].get("learned_mpc")}
     if pooled:
         rows.append(["**learned MPC, every network's episodes pooled**", *[
@@ -926,8 +939,30 @@ def section_robust() -> str:
                 "starts each flown on its own robot from Theta; every baseline on the same starts and robots. "
                 + ROBUST_TIMES]
         for task in tasks:
-            out += ["", *shipped_robust_section(task)]
+            out += ["", *shipped_robust_section(task), *deployment_section(task)]
     return "\n".join(out)
+
+
+def deployment_section(task: str) -> list[str]:
+    """The shipped robust MPC under other deployment settings (``robust_deployment.json``), when measured."""
+    path = RESULTS / "robust_deployment.json"
+    block = load("robust_deployment.json").get(task) if path.exists() else None
+    if not block:
+        return []
+    rows = [[v["label"], " / ".join(pct(r) for r in v["success_per_seed"]), f"**{pct(v['success_median'])}**",
+             str(v["fallback_steps"]), str(v["crashes"]), f"{ms(v['median_ms'])} / {ms(v['p95_ms'])}"]
+            for v in block["variants"]]
+    return [
+        "",
+        f"The same networks under other deployment settings, each changing one setting of the shipped one, on "
+        f"{block['starts']} validation starts x robots (never the held-out ones above; "
+        "[what they show](experiments/robust.md)):",
+        "",
+        table(["deployment", "success per seed", "median", "fallback steps", "crashes", "solve ms (median / p95)"],
+              rows),
+        "",
+        f"Command: `{CURRENT['robust_deployment.json'][1]}`.",
+    ]
 
 
 def section_speed() -> str:

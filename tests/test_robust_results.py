@@ -128,3 +128,28 @@ def test_domain_randomised_rl_rows_train_once_select_on_validation_and_fly_the_b
     monkeypatch.setattr(bench_robust, "train_sb3", lambda *a, **k: pytest.fail("retrained a completed run"))
     again = bench_robust.dr_rows(bench, tmp_path, 1, False, score)
     assert again["dr-ppo"]["per_seed"][0]["selected_at"] == row["per_seed"][0]["selected_at"]
+
+
+def test_the_deployment_sweep_varies_the_shipped_deployment_of_the_committed_networks():
+    """``robust_deployment.json``: its first variant is the shipped robust MPC's spec, each other changes what its
+    name says, the networks are the committed per-seed ones and each median is its seeds' median."""
+    import sys
+
+    sys.path.insert(0, str(ROOT))
+    from benchmarks.bench_robust import robust_spec
+    from benchmarks.bench_robust_deployment import VARIANTS, variant_spec
+
+    sweep = json.loads((ROOT / "benchmarks" / "results" / "robust_deployment.json").read_text())
+    net = str(ROOT / RESULT["glider"]["shipped"]["network"])
+    shipped = variant_spec(VARIANTS[0], net, 10)
+    assert (shipped.options, shipped.knows_robot) == (robust_spec(net, 10).options, False)
+    by_name = {v.name: variant_spec(v, net, 10).option_dict() for v in VARIANTS}
+    assert by_name["horizon-minus-2"]["horizon"] == 8 and by_name["horizon-plus-2"]["horizon"] == 12
+    assert dict(by_name["estimate-weak-prior"]["estimate_robot"]) == {"prior": 1e-5}
+    assert by_name["knows-robot"]["estimate_robot"] is False
+    for task_name, block in ((k, v) for k, v in sweep.items() if k != "machine"):
+        assert block["networks"] == [r["network"] for r in RESULT[task_name]["robust"]["per_seed"]]
+        assert [v["name"] for v in block["variants"]] == [v.name for v in VARIANTS]
+        for variant in block["variants"]:
+            assert len(variant["success_per_seed"]) == len(block["networks"])
+            assert variant["success_median"] == pytest.approx(float(np.median(variant["success_per_seed"])))
