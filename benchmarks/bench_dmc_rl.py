@@ -25,7 +25,9 @@ is ``dmc_rl.json`` in the results directory)::
 ``score_mean`` is the mean over training seeds of each seed's mean over the 10 episodes, ``score_std`` the standard
 deviation (ddof 0) of those per-seed means; ``per_seed`` holds each seed's ``seed``, ``scores``, ``mean``,
 ``selected_at`` (the validation point of the selected model), ``env_steps`` and ``train_wall_s``;
-``train_wall_s`` is the sum over seeds (validation excluded).
+``train_wall_s`` is the sum over seeds (validation excluded); each block also keeps the ``command`` and ``machine``
+of the run that wrote it. ``--json`` merges into an existing file: the blocks of the tasks and algorithms run
+replace theirs, every other block stays, so tasks may be run one invocation at a time.
 
 Throughput (``--throughput SECONDS``: one process, one torch thread, the full settings, no validation), measured
 on pendulum-swingup with ``nice -n 5 .venv/bin/python benchmarks/bench_dmc_rl.py --throughput 120 --tasks
@@ -151,14 +153,17 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     else:
         steps = parse_steps(args.steps, algos)
         tasks = {e: {a: run_algo(e, a, list(range(args.seeds)), steps[a], args.out) for a in algos} for e in env_ids}
-        result = {
-            "tasks": tasks,
-            "eval_seeds": list(EVAL_SEEDS),
-            "command": command,
-            "machine": machine("mujoco", "shimmy", "gymnasium", "torch", "stable_baselines3"),
-        }
+        host = machine("mujoco", "shimmy", "gymnasium", "torch", "stable_baselines3")
+        for blocks in tasks.values():
+            for block in blocks.values():
+                block.update(command=command, machine=host)
+        result = {"tasks": tasks, "eval_seeds": list(EVAL_SEEDS), "command": command, "machine": host}
         if args.json is not None:
-            atomic_write_json(args.json, result, indent=1)
+            # a task or algorithm run on its own replaces its block only: the file keeps every other one
+            merged = json.loads(args.json.read_text()) if args.json.is_file() else {"tasks": {}}
+            for env_id, blocks in tasks.items():
+                merged["tasks"].setdefault(env_id, {}).update(blocks)
+            atomic_write_json(args.json, {**merged, **{k: v for k, v in result.items() if k != "tasks"}}, indent=1)
     print(json.dumps(result))
     return result
 

@@ -201,3 +201,38 @@ def test_run_dmc_episode_gives_the_flattened_observation_on_request() -> None:
 
     with pytest.raises(ValueError, match="pixels"):
         run_dmc_episode(ENV, Wrong(), seed=0)
+
+
+def test_benchmark_file_keeps_the_blocks_of_tasks_run_separately(tmp_path: Path, monkeypatch: Any) -> None:
+    """``bench_dmc_rl.py --json FILE`` run for one task, then another, keeps both tasks' blocks (each with the
+    command that wrote it); re-running a task replaces only its block."""
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from benchmarks import bench_dmc_rl
+
+    calls: list[tuple[str, str]] = []
+
+    def fake_run(env_id: str, algo: str, seeds: list[int], steps: int | None, out: Path) -> dict[str, Any]:
+        calls.append((env_id, algo))
+        return {"score_mean": float(len(calls)), "score_std": 0.0, "seeds": len(seeds), "env_steps": steps}
+
+    monkeypatch.setattr(bench_dmc_rl, "run_algo", fake_run)
+    path = tmp_path / "dmc_rl.json"
+    bench_dmc_rl.main(
+        ["--tasks", "pendulum-swingup", "--algos", "PPO", "--seeds", "2", "--steps", "10", "--json", str(path)]
+    )
+    bench_dmc_rl.main(
+        ["--tasks", "cartpole-swingup", "--algos", "PPO", "--seeds", "2", "--steps", "20", "--json", str(path)]
+    )
+    tasks = json.loads(path.read_text())["tasks"]
+    pendulum, cartpole = tasks["dm_control/pendulum-swingup-v0"]["ppo"], tasks["dm_control/cartpole-swingup-v0"]["ppo"]
+    assert (pendulum["score_mean"], pendulum["env_steps"]) == (1.0, 10)
+    assert (cartpole["score_mean"], cartpole["env_steps"]) == (2.0, 20)
+    assert "pendulum-swingup" in pendulum["command"] and "cartpole-swingup" in cartpole["command"]
+    bench_dmc_rl.main(
+        ["--tasks", "pendulum-swingup", "--algos", "PPO", "--seeds", "2", "--steps", "30", "--json", str(path)]
+    )
+    tasks = json.loads(path.read_text())["tasks"]
+    assert tasks["dm_control/pendulum-swingup-v0"]["ppo"]["env_steps"] == 30
+    assert tasks["dm_control/cartpole-swingup-v0"]["ppo"]["env_steps"] == 20
