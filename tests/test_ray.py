@@ -247,16 +247,16 @@ def _gcs_solver_actors() -> set[str] | None:
 
 def test_later_calls_reuse_the_actor_pool(local_ray: Any) -> None:
     starts = _acrobot_starts(6)
-    local = solve_many("acrobot", starts, workers=1, progress=False)
+    local = _fast(starts, workers=1, backend="local")  # the pool's plumbing is tested, not the swing-up (FAST)
     parallel.shutdown_ray_pool()  # start without a pool: the first call creates it
     created = parallel._RAY_POOL.created
 
-    first = solve_many("acrobot", starts, workers=1, backend="ray", progress=False)
+    first = _fast(starts, workers=1)
     assert parallel._RAY_POOL.created == created + 1
     (id0,) = _pool_ids()
     (pid0,) = ray.get([a.pid.remote() for a in parallel._RAY_POOL.actors])
 
-    second = solve_many("acrobot", starts, workers=2, backend="ray", progress=False)  # grows the pool by one
+    second = _fast(starts, workers=2)  # grows the pool by one
     assert parallel._RAY_POOL.created == created + 2
     ids = _pool_ids()
     assert len(ids) == 2 and ids[0] == id0
@@ -266,7 +266,7 @@ def test_later_calls_reuse_the_actor_pool(local_ray: Any) -> None:
     if in_gcs is not None:
         assert set(ids) <= in_gcs
 
-    third = solve_many("acrobot", starts[::-1], workers=2, backend="ray", progress=False)
+    third = _fast(starts[::-1], workers=2)
     assert parallel._RAY_POOL.created == created + 2, "the third call created actors"
     assert _pool_ids() == ids
     assert ray.get([a.pid.remote() for a in parallel._RAY_POOL.actors]) == pids  # the same processes
