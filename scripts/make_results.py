@@ -161,6 +161,11 @@ CURRENT: dict[str, tuple[str, str]] = {
         "python benchmarks/bench_dmc_learned.py evaluate NETWORKS --domain DOMAIN --solves ... --seeds 0-9 "
         "--json benchmarks/results/dmc_learned.json",
     ),
+    "dmc_rl.json": (
+        "SB3 PPO (CleanRL's settings) on the suite's swing-ups: per task, each training seed's model selected on "
+        "validation episodes (reset seeds 1000+) and scored on reset seeds 0-9, with the validation curves",
+        "python benchmarks/bench_dmc_rl.py --tasks TASK --algos PPO --json benchmarks/results/dmc_rl.json",
+    ),
     "networks/": ("value networks: the shipped ones and one representative seed of each compared sampler", ""),
     "models/": ("the shipped SB3 models (PPO and SAC per task)", ""),
 }
@@ -518,7 +523,8 @@ def readme_dmc() -> str:
             ("-" if ref is None else f"{ref['score_mean']:.0f} ± {ref['score_std']:.0f}")
             + ("" if not b.get("optimum") else f" (optimum {b['optimum']['score_mean']:.0f})"),
             f"{classical['mean']:.0f} ± {classical['std']:.0f} ({DMC_LABELS.get(classical['controller'], '')})",
-            *["-" if b.get(algo) is None else f"{b[algo]['score_mean']:.0f} ({b[algo]['env_steps'] / 1e6:g} M)"
+            *["-" if b.get(algo) is None else (f"{b[algo]['score_mean']:.0f} "
+                                               f"({b[algo]['seeds']} seeds, {b[algo]['env_steps'] / 1e6:.3g} M steps)")
               for algo in ("sac", "ppo")],
             _best_published(b),
         ])
@@ -783,7 +789,7 @@ def section_dmc() -> str:
         runs = {t: data[t][algo] for t in DMC_TASKS if data[t].get(algo)}
         if runs:
             steps = sorted({r["env_steps"] for r in runs.values()})
-            rows.append([f"{algo.upper()} (SB3, {'/'.join(f'{s / 1e6:g}' for s in steps)} M steps, each seed's "
+            rows.append([f"{algo.upper()} (SB3, {'/'.join(f'{s / 1e6:.3g}' for s in steps)} M steps, each seed's "
                          "model selected on validation episodes; mean ± std over seeds)", *[
                              "" if t not in runs else f"{runs[t]['score_mean']:.0f} ± {runs[t]['score_std']:.0f} "
                              f"({runs[t]['seeds']} seeds)" for t in DMC_TASKS]])

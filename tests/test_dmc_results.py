@@ -67,6 +67,27 @@ def test_the_blocks_are_what_their_source_files_say(dmc: dict[str, Any]) -> None
         assert dmc[name]["full_horizon"] == dmc_contract.reference_block(env_id)
         assert dmc[name]["optimum"] == dmc_contract.optimum_block(env_id)
         assert dmc[name]["published"] == dmc_contract.published_block(env_id)
+        for algo in ("sac", "ppo"):
+            assert dmc[name][algo] == dmc_contract.rl_block(env_id, algo)
+
+
+def test_the_rl_baselines_summarise_their_seeds() -> None:
+    """``dmc_rl.json``: each block's mean and std are those of its seeds' means, each seed's mean that of its ten
+    scores on the evaluation seeds, its selected point on its own validation curve; budgets of at least 1 M steps."""
+    path = ROOT / "benchmarks" / "results" / "dmc_rl.json"
+    if not path.is_file():
+        pytest.skip("no RL run committed")
+    data = json.loads(path.read_text())
+    assert data["eval_seeds"] == list(range(10))
+    for blocks in data["tasks"].values():
+        for block in blocks.values():
+            means = [row["mean"] for row in block["per_seed"]]
+            assert block["seeds"] == len(means) >= 5 and block["env_steps"] >= 1_000_000
+            assert block["score_mean"] == pytest.approx(np.mean(means), abs=1e-3)
+            assert block["score_std"] == pytest.approx(np.std(means), abs=1e-3)
+            for row, curve in zip(block["per_seed"], block["curves"], strict=True):
+                assert len(row["scores"]) == 10 and row["mean"] == pytest.approx(np.mean(row["scores"]), abs=1e-3)
+                assert row["selected_at"]["mean"] == max(point["mean"] for point in curve)
 
 
 def _write(tmp: Path, name: str, payload: dict[str, Any]) -> None:
