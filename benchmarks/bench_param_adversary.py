@@ -225,6 +225,7 @@ def closed_loop(
         "success": [bool(r.success) for r in results],
         "final_distance_median": float(np.median([r.final_distance for r in results])),
         "fallback_steps": int(sum(r.fallbacks for r in results)),
+        "crashes": int(sum(r.terminated for r in results)),
         "median_ms": float(np.median(times)) if times.size else float("nan"),
         "p95_ms": float(np.percentile(times, 95)) if times.size else float("nan"),
         "wall_s": round(time.perf_counter() - t0, 1),

@@ -18,8 +18,9 @@ held-out starts x robots the shipped figures are measured on, so a setting chose
 
 The result file holds, per task, ``{"horizon", "starts", "set", "variants": [{"name", "label", "options",
 "knows_robot", "success_per_seed", "success_median", "fallback_steps", "crashes", "median_ms", "p95_ms"}]}`` (the
-first variant is the shipped deployment) and the ``machine``. Every evaluation is cached as JSON under ``--out``, so
-a re-run continues. The last line of stdout is the result as one JSON object.
+first variant is the shipped deployment) and the ``machine``. Every evaluation is
+``bench_param_adversary.closed_loop``'s, cached as JSON under ``--out``, so a re-run continues. The last line of
+stdout is the result as one JSON object.
 """
 
 from __future__ import annotations
@@ -38,7 +39,8 @@ ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
 from benchmarks._common import machine  # noqa: E402
-from seagul_control.evaluation import PolicySpec, evaluate  # noqa: E402
+from benchmarks.bench_param_adversary import ParamBenchConfig, closed_loop  # noqa: E402
+from seagul_control.evaluation import PolicySpec  # noqa: E402
 from seagul_control.io import atomic_write_json  # noqa: E402
 from seagul_envs import make_task  # noqa: E402
 from seagul_learn.baselines import validation_robots, validation_starts  # noqa: E402
@@ -88,27 +90,6 @@ def variant_spec(variant: Variant, network: str, horizon: int) -> PolicySpec:
     return PolicySpec("mpc", variant.label, network, tuple(options.items()), variant.knows_robot)
 
 
-def run_variant(
-    task_name: str, spec: PolicySpec, starts: np.ndarray, robots: np.ndarray, workers: int, cache: Path
-) -> dict[str, Any]:
-    """Success, fallbacks, crashes and solve times of one network under one deployment (cached as JSON)."""
-    if cache.is_file():
-        return json.loads(cache.read_text())
-    t0 = time.perf_counter()
-    results = evaluate(task_name, [spec], starts, workers=workers, progress=False, robots=robots)
-    times = np.array([t for r in results for t in r.solve_times]) * 1e3
-    row = {
-        "success_rate": float(np.mean([r.success for r in results])),
-        "fallback_steps": int(sum(r.fallbacks for r in results)),
-        "crashes": int(sum(r.terminated for r in results)),
-        "median_ms": float(np.median(times)),
-        "p95_ms": float(np.percentile(times, 95)),
-        "wall_s": round(time.perf_counter() - t0, 1),
-    }
-    atomic_write_json(cache, row)
-    return row
-
-
 def run_task(task_name: str, n_starts: int, workers: int, out: Path) -> dict[str, Any]:
     """Every variant of :data:`VARIANTS` for every seed's network of ``param_adversary.json``."""
     task = make_task(task_name)
@@ -116,11 +97,12 @@ def run_task(task_name: str, n_starts: int, workers: int, out: Path) -> dict[str
     horizon = int(block["shipped"]["horizon"])
     networks = [str(ROOT / row["network"]) for row in block["robust"]["per_seed"]]
     starts, robots = validation_starts(task, n_starts), validation_robots(task, n_starts)
+    scorer = ParamBenchConfig(task=task_name)
     variants = []
     for variant in VARIANTS:
         rows = [
-            run_variant(
-                task_name,
+            closed_loop(
+                scorer,
                 variant_spec(variant, net, horizon),
                 starts,
                 robots,
