@@ -40,6 +40,7 @@ sys.path.insert(0, str(ROOT))
 
 from benchmarks._common import machine  # noqa: E402
 from benchmarks.bench_param_adversary import ParamBenchConfig, closed_loop  # noqa: E402
+from benchmarks.bench_robust import robust_spec  # noqa: E402
 from seagul_control.evaluation import PolicySpec  # noqa: E402
 from seagul_control.io import atomic_write_json  # noqa: E402
 from seagul_envs import make_task  # noqa: E402
@@ -83,8 +84,8 @@ VARIANTS: tuple[Variant, ...] = (
 
 
 def variant_spec(variant: Variant, network: str, horizon: int) -> PolicySpec:
-    """The shipped robust MPC's spec with ``variant``'s changes."""
-    options: dict[str, Any] = {"horizon": horizon, "model_params": True, "estimate_robot": True}
+    """The shipped robust MPC's spec (``bench_robust.robust_spec``) with ``variant``'s changes."""
+    options = robust_spec(network, horizon).option_dict()
     for key, value in variant.options:
         options[key] = horizon + int(value) if key == "horizon" else value
     return PolicySpec("mpc", variant.label, network, tuple(options.items()), variant.knows_robot)
@@ -93,7 +94,9 @@ def variant_spec(variant: Variant, network: str, horizon: int) -> PolicySpec:
 def run_task(task_name: str, n_starts: int, workers: int, out: Path) -> dict[str, Any]:
     """Every variant of :data:`VARIANTS` for every seed's network of ``param_adversary.json``."""
     task = make_task(task_name)
-    block = json.loads((RESULTS / "param_adversary.json").read_text())[task_name]
+    block = json.loads((RESULTS / "param_adversary.json").read_text()).get(task_name, {})
+    if "shipped" not in block or "robust" not in block:
+        raise SystemExit(f"{task_name}: param_adversary.json has no shipped robust MPC (run bench_robust.py first)")
     horizon = int(block["shipped"]["horizon"])
     networks = [str(ROOT / row["network"]) for row in block["robust"]["per_seed"]]
     starts, robots = validation_starts(task, n_starts), validation_robots(task, n_starts)
