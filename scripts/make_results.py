@@ -523,14 +523,15 @@ def readme_dmc() -> str:
             ("-" if ref is None else f"{ref['score_mean']:.0f} ± {ref['score_std']:.0f}")
             + ("" if not b.get("optimum") else f" (optimum {b['optimum']['score_mean']:.0f})"),
             f"{classical['mean']:.0f} ± {classical['std']:.0f} ({DMC_LABELS.get(classical['controller'], '')})",
-            *["-" if b.get(algo) is None else (f"{b[algo]['score_mean']:.0f} "
+            *["-" if b.get(algo) is None else (f"{b[algo]['score_mean']:.0f} ± {b[algo]['score_std']:.0f} "
                                                f"({b[algo]['seeds']} seeds, {b[algo]['env_steps'] / 1e6:.3g} M steps)")
               for algo in ("sac", "ppo")],
             _best_published(b),
         ])
     return "\n".join([
         "**DeepMind Control Suite swing-ups**, scored by dm_control's own reward on its own episodes (0 to 1000, "
-        f"mean ± std over reset seeds {data['seeds'][0]}-{data['seeds'][-1]}; `benchmarks/results/dmc.json`, "
+        f"mean ± std over reset seeds {data['seeds'][0]}-{data['seeds'][-1]}, for SAC and PPO over training seeds "
+        "of each seed's mean; `benchmarks/results/dmc.json`, "
         "[details](docs/results.md#deepmind-control-suite-swing-ups), "
         "[animations](docs/results.md#the-controllers-from-one-start)). A dash is a run not made yet.",
         "",
@@ -805,6 +806,10 @@ def section_dmc() -> str:
                     "`benchmarks/results/dmc_learned.json`, `" + block["command"].split(" --tuning")[0]
                     + "`; the setting was chosen on reset seeds " + f"{block['tuning_seeds'][0]}-"
                     f"{block['tuning_seeds'][-1]} ([the learned MPC](experiments/dmc-learned.md)).")
+    if (RESULTS / "dmc_rl.json").exists():
+        out[-1] += (" PPO: `benchmarks/results/dmc_rl.json`, `python benchmarks/bench_dmc_rl.py --tasks TASK --algos "
+                    "PPO --json benchmarks/results/dmc_rl.json`, gathered by `python benchmarks/bench_dmc.py --gather "
+                    "--json benchmarks/results/dmc.json` ([the RL baselines](experiments/dmc-rl.md)).")
     if (RESULTS / "dmc_published.json").exists():
         pub = load("dmc_published.json")["scores"]
         prow = [[p["task"], p["method"], f"{p['score']:.0f}", f"{p['env_steps']:,}", p.get("observations", ""),
@@ -859,7 +864,8 @@ def dmc_animations() -> list[str]:
     out = ["", "### The controllers from one start", "",
            "Each animation replays dm_control's own episodes from one reset seed, the evaluation seed whose start is "
            "farthest from upright, drawn by MuJoCo's renderer from the recorded physics states; each panel's score "
-           "is that controller's committed score on this seed. SAC and PPO join once their runs are committed. "
+           "is that controller's committed score on this seed. The RL policies are not animated: their trained "
+           "models are not committed ([the RL baselines](experiments/dmc-rl.md)). "
            "Command: `python benchmarks/animate_dmc.py`."]
     for task in DMC_TASKS:
         if task not in shown:
