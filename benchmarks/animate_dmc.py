@@ -15,7 +15,8 @@ upright, :func:`hardest_seed`; the committed scores use seeds 0-9), it runs each
 * the task's classical swing-up with LQR catch (``classical``: energy shaping, Astrom-Furuta, Spong);
 * the full-horizon reference (:class:`seagul_control.dmc_reference.FullHorizonReference`; minutes on the acrobot;
   ``--no-reference`` leaves it out);
-* SAC and PPO once their runs are committed (``sac``/``ppo`` blocks with a model): not yet.
+* SAC and PPO where their selected model is committed (``sac``/``ppo`` blocks with a ``model``, shipped by
+  ``benchmarks/bench_dmc_rl.py --ship``), loaded by :func:`seagul_learn.dmc_rl.load_sb3_dmc`.
 
 Every episode is deterministic, so each panel's score is the committed score of that controller on that reset seed;
 the script prints both and says so when they differ, and records what each animation shows (reset seed, each
@@ -46,6 +47,7 @@ from seagul_control.io import atomic_write_text  # noqa: E402
 TASKS = ("pendulum-swingup", "cartpole-swingup", "acrobot-swingup")
 RESULTS = ROOT / "benchmarks" / "results" / "dmc.json"
 REFERENCE = ROOT / "benchmarks" / "results" / "dmc_reference.json"
+RL = ROOT / "benchmarks" / "results" / "dmc_rl.json"
 
 
 #: The physics state's angle coordinates per env (zero is upright; ``seagul_control.dmc.physics_state``).
@@ -96,6 +98,16 @@ def controllers(
     row = next((r for r in block.get("classical", []) if r.get("controller") == name), {})
     label = {"energy": "energy shaping + LQR", "astrom_furuta": "Astrom-Furuta + LQR", "spong": "Spong + LQR"}[name]
     out.append((label, controller_cls(params_cls()), _score(row.get("scores"), row.get("seeds"), seed), 1))
+    for algo in ("sac", "ppo"):
+        rl = block.get(algo) or {}
+        if not rl.get("model"):
+            continue
+        from seagul_learn.dmc_rl import load_sb3_dmc
+
+        runs = json.loads(RL.read_text())
+        committed = _score(runs["tasks"][env_id][algo].get("model_scores"), runs.get("eval_seeds"), seed)
+        label = f"{algo.upper()}, {rl['env_steps'] / 1e6:.3g} M steps (seed {rl['model_seed']})"
+        out.append((label, load_sb3_dmc(ROOT / rl["model"]), committed, 1))
     if reference:
         from seagul_control.dmc_reference import FullHorizonReference
 

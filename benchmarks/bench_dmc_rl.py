@@ -5,7 +5,8 @@ Usage::
 
     .venv/bin/python benchmarks/bench_dmc_rl.py [--tasks pendulum-swingup,cartpole-swingup,...] [--algos PPO,SAC]
         [--seeds 5] [--steps 1000000 | --steps PPO=1000000,SAC=1000000] [--out runs/dmc_rl]
-        [--json FILE]
+        [--json FILE] [--ship]
+    .venv/bin/python benchmarks/bench_dmc_rl.py --tasks pendulum-swingup --algos PPO --json FILE --ship-only
     .venv/bin/python benchmarks/bench_dmc_rl.py --throughput 120 [--tasks pendulum-swingup] [--algos PPO,SAC]
 
 Every run is :func:`seagul_learn.dmc_rl.train_dmc_sb3` with the settings of ``seagul_learn/hyperparams/dmc.yml``
@@ -13,7 +14,11 @@ Every run is :func:`seagul_learn.dmc_rl.train_dmc_sb3` with the settings of ``se
 in ``<out>/<task>/<algo>/seed<k>``: a finished run is reused, an interrupted one resumes from its last validation
 checkpoint. The model of each seed selected on the validation episodes (reset seeds 1000+) is scored by
 :func:`seagul_learn.dmc_rl.evaluate_sb3_dmc` on reset seeds 0-9. ``--steps`` defaults to each entry's
-``n_timesteps`` (1,000,000 for both).
+``n_timesteps`` (1,000,000 for both). ``--ship`` copies, per task and algorithm, the selected model of the seed with
+the best validation point to ``benchmarks/results/models/dmc/<task>_<algo>/`` (:func:`ship`; the block records it
+as ``model``, ``model_seed`` and ``model_scores``): ``seagul_learn.dmc_rl.load_sb3_dmc`` loads it, and
+``benchmarks/animate_dmc.py`` animates it. ``--ship-only`` does the same for the blocks already in ``--json FILE``
+without training or scoring anything; only the shipped seed's run must be in ``--out``.
 
 The last line of stdout is the JSON written to ``--json`` (omit ``--json`` to write nothing; the benchmark's file
 is ``dmc_rl.json`` in the results directory)::
@@ -60,7 +65,7 @@ sys.path.insert(0, str(ROOT))
 
 from benchmarks._common import machine  # noqa: E402
 from seagul_control.dmc import DMC_ENV_IDS, dmc_env_id  # noqa: E402
-from seagul_control.io import atomic_write_json  # noqa: E402
+from seagul_control.io import atomic_write_bytes, atomic_write_json  # noqa: E402
 from seagul_learn.dmc_rl import (  # noqa: E402
     ALGOS,
     dmc_settings,
@@ -129,6 +134,41 @@ def run_algo(env_id: str, algo: str, seeds: list[int], steps: int | None, out: P
     }
 
 
+#: Where ``--ship`` puts each task's selected model: ``<SHIP_DIR>/<task>_<algo>/``.
+SHIP_DIR = ROOT / "benchmarks" / "results" / "models" / "dmc"
+
+#: The files of a saved model directory (``best/`` of a run), as :func:`seagul_learn.dmc_rl.load_sb3_dmc` reads them.
+MODEL_FILES = ("model.zip", "policy.json", "vecnormalize.pkl")
+
+
+def ship(env_id: str, algo: str, block: dict[str, Any], out: Path, dest: Path | None = None) -> dict[str, Any]:
+    """Copy the selected model of the seed with the best validation point (its ``selected_at`` mean; ties: the
+    lower seed) from its run in ``out`` to ``dest/<task>_<algo>/`` (default :data:`SHIP_DIR`) and record it in
+    ``block``: ``model`` (the directory, relative to the repository when inside it), ``model_seed`` and
+    ``model_scores`` (that seed's scores on :data:`EVAL_SEEDS`). Raises when the run's ``best/`` is missing or was
+    trained in another env."""
+    best = max(block["per_seed"], key=lambda row: (row["selected_at"]["mean"], -row["seed"]))
+    source = out / short_name(env_id) / algo / f"seed{best['seed']}" / "best"
+    meta_path = source / "policy.json"
+    if not meta_path.is_file():
+        raise FileNotFoundError(f"cannot ship {short_name(env_id)} {algo}: {source} holds no saved model")
+    meta = json.loads(meta_path.read_text())
+    if meta["env_id"] != env_id or meta["seed"] != best["seed"]:
+        raise ValueError(f"{source} holds {meta['env_id']} seed {meta['seed']}, not {env_id} seed {best['seed']}")
+    target = (SHIP_DIR if dest is None else dest) / f"{short_name(env_id)}_{algo}"
+    target.mkdir(parents=True, exist_ok=True)
+    for name in MODEL_FILES:
+        if (source / name).is_file():
+            atomic_write_bytes(target / name, (source / name).read_bytes())
+    shown = target.resolve()
+    block.update(
+        model=str(shown.relative_to(ROOT)) if shown.is_relative_to(ROOT) else str(shown),
+        model_seed=best["seed"],
+        model_scores=best["scores"],
+    )
+    return block
+
+
 def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--tasks", default=",".join(short_name(e) for e in DMC_ENV_IDS), help="comma-separated")
@@ -138,6 +178,18 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "dmc_rl")
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--throughput", type=float, default=None, metavar="SECONDS")
+    parser.add_argument(
+        "--ship",
+        action="store_true",
+        help="copy each task's selected model (the seed with the best validation point) to "
+        "benchmarks/results/models/dmc/<task>_<algo>/ and record it in the block",
+    )
+    parser.add_argument(
+        "--ship-only",
+        action="store_true",
+        help="ship the models of the blocks already in --json FILE without training or scoring (only the shipped "
+        "seed's run must be in --out)",
+    )
     args = parser.parse_args(argv)
     env_ids = [dmc_env_id(t.strip()) for t in args.tasks.split(",") if t.strip()]
     algos = [a.strip().lower() for a in args.algos.split(",") if a.strip()]
@@ -147,12 +199,27 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     if args.seeds < 1:
         raise ValueError(f"--seeds must be >= 1, got {args.seeds}")
     command = " ".join(["benchmarks/bench_dmc_rl.py", *(argv if argv is not None else sys.argv[1:])])
-    if args.throughput is not None:
+    if args.ship_only:
+        if args.json is None or not args.json.is_file():
+            raise ValueError("--ship-only ships the blocks of an existing --json FILE: name it")
+        result = json.loads(args.json.read_text())
+        for env_id in env_ids:
+            for algo in algos:
+                block = result["tasks"].get(env_id, {}).get(algo)
+                if block is None:
+                    raise ValueError(f"{args.json} holds no {algo} block for {env_id}: run it first")
+                ship(env_id, algo, block, args.out)
+        atomic_write_json(args.json, result, indent=1)
+    elif args.throughput is not None:
         rows = [measure_throughput(a, e, args.throughput) for e in env_ids for a in algos]
-        result: dict[str, Any] = {"throughput": rows, "command": command, "machine": machine("torch")}
+        result = {"throughput": rows, "command": command, "machine": machine("torch")}
     else:
         steps = parse_steps(args.steps, algos)
         tasks = {e: {a: run_algo(e, a, list(range(args.seeds)), steps[a], args.out) for a in algos} for e in env_ids}
+        if args.ship:
+            for env_id, blocks in tasks.items():
+                for algo, block in blocks.items():
+                    ship(env_id, algo, block, args.out)
         host = machine("mujoco", "shimmy", "gymnasium", "torch", "stable_baselines3")
         for blocks in tasks.values():
             for block in blocks.values():

@@ -141,15 +141,14 @@ def optimum_block(env_id: str, results: Path = RESULTS) -> dict[str, Any] | None
 
 
 def rl_block(env_id: str, algo: str, results: Path = RESULTS) -> dict[str, Any] | None:
-    """An RL baseline's block (``score_mean``, ``score_std``, ``seeds``, ``env_steps``) from ``dmc_rl.json``, or
-    None when that run has not been made."""
+    """An RL baseline's block (``score_mean``, ``score_std``, ``seeds``, ``env_steps``, and ``model`` where the
+    selected model is committed) from ``dmc_rl.json``, or None when that run has not been made."""
     data = _load("dmc_rl.json", results)
     entry = ((data or {}).get("tasks", {}).get(env_id) or {}).get(algo.lower())
     if not entry:
         return None
-    return {key: entry[key] for key in ("score_mean", "score_std", "seeds", "env_steps")} | {
-        "source": _source("dmc_rl.json")
-    }
+    keys = ("score_mean", "score_std", "seeds", "env_steps", "model", "model_seed")
+    return {key: entry[key] for key in keys if key in entry} | {"source": _source("dmc_rl.json")}
 
 
 def published_block(env_id: str, results: Path = RESULTS) -> list[dict[str, Any]]:

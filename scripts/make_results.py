@@ -167,7 +167,7 @@ CURRENT: dict[str, tuple[str, str]] = {
         "python benchmarks/bench_dmc_rl.py --tasks TASK --algos PPO --json benchmarks/results/dmc_rl.json",
     ),
     "networks/": ("value networks: the shipped ones and one representative seed of each compared sampler", ""),
-    "models/": ("the shipped SB3 models (PPO and SAC per task)", ""),
+    "models/": ("the shipped SB3 models: PPO and SAC per seagul task, PPO per suite task under `dmc/`", ""),
 }
 
 #: Figures drawn by the benchmarks themselves and kept beside their JSON.
@@ -809,7 +809,10 @@ def section_dmc() -> str:
     if (RESULTS / "dmc_rl.json").exists():
         out[-1] += (" PPO: `benchmarks/results/dmc_rl.json`, `python benchmarks/bench_dmc_rl.py --tasks TASK --algos "
                     "PPO --json benchmarks/results/dmc_rl.json`, gathered by `python benchmarks/bench_dmc.py --gather "
-                    "--json benchmarks/results/dmc.json` ([the RL baselines](experiments/dmc-rl.md)).")
+                    "--json benchmarks/results/dmc.json` ([the RL baselines](experiments/dmc-rl.md)); each task's "
+                    "selected model, the seed with the best validation point, is committed in "
+                    "`benchmarks/results/models/dmc/<task>_ppo/` (`bench_dmc_rl.py --ship`; "
+                    "`seagul_learn.dmc_rl.load_sb3_dmc` loads it).")
     if (RESULTS / "dmc_published.json").exists():
         pub = load("dmc_published.json")["scores"]
         prow = [[p["task"], p["method"], f"{p['score']:.0f}", f"{p['env_steps']:,}", p.get("observations", ""),

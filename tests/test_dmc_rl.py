@@ -236,3 +236,71 @@ def test_benchmark_file_keeps_the_blocks_of_tasks_run_separately(tmp_path: Path,
     tasks = json.loads(path.read_text())["tasks"]
     assert tasks["dm_control/pendulum-swingup-v0"]["ppo"]["env_steps"] == 30
     assert tasks["dm_control/cartpole-swingup-v0"]["ppo"]["env_steps"] == 20
+
+
+def test_ship_copies_the_best_validated_seeds_model(
+    runs: dict[str, tuple[Path, dict[str, Any]]], tmp_path: Path
+) -> None:
+    """``bench_dmc_rl.py --ship`` copies the model of the seed with the best validation point (not the best score
+    on the scoring seeds), the copy scores as the run's own model, and a run holding another seed's model is refused."""
+    import shutil
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from benchmarks import bench_dmc_rl
+
+    source, _ = runs["ppo"]
+    out = tmp_path / "runs"
+    shutil.copytree(source / "best", out / "pendulum-swingup" / "ppo" / "seed0" / "best")
+    block = {
+        "per_seed": [
+            {"seed": 0, "selected_at": {"mean": 50.0}, "scores": [1.0, 2.0]},
+            {"seed": 1, "selected_at": {"mean": 40.0}, "scores": [900.0, 900.0]},  # better scores, worse validation
+        ]
+    }
+    dest = tmp_path / "models"
+    bench_dmc_rl.ship(ENV, "ppo", block, out, dest)
+    target = dest / "pendulum-swingup_ppo"
+    assert block["model"] == str(target.resolve()) and block["model_seed"] == 0 and block["model_scores"] == [1.0, 2.0]
+    for name in ("model.zip", "policy.json", "vecnormalize.pkl"):
+        assert (target / name).read_bytes() == (source / "best" / name).read_bytes()
+    assert evaluate_sb3_dmc(target, ENV, [3])["scores"] == evaluate_sb3_dmc(source, ENV, [3])["scores"]
+    block["per_seed"][1]["selected_at"]["mean"] = 60.0
+    with pytest.raises(FileNotFoundError, match="seed1"):
+        bench_dmc_rl.ship(ENV, "ppo", block, out, dest)
+    shutil.copytree(source / "best", out / "pendulum-swingup" / "ppo" / "seed1" / "best")
+    with pytest.raises(ValueError, match=r"seed 0, not .* seed 1"):
+        bench_dmc_rl.ship(ENV, "ppo", block, out, dest)
+
+
+def test_ship_only_ships_the_committed_blocks_without_training(
+    runs: dict[str, tuple[Path, dict[str, Any]]], tmp_path: Path, monkeypatch: Any
+) -> None:
+    """``--ship-only`` reads the blocks of ``--json FILE``, ships their models, records them in the file and trains
+    or scores nothing; a task without a block is refused by name."""
+    import shutil
+    import sys
+
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+    from benchmarks import bench_dmc_rl
+
+    source, _ = runs["ppo"]
+    out = tmp_path / "runs"
+    shutil.copytree(source / "best", out / "pendulum-swingup" / "ppo" / "seed0" / "best")
+    path = tmp_path / "dmc_rl.json"
+    block = {"score_mean": 1.0, "per_seed": [{"seed": 0, "selected_at": {"mean": 5.0}, "scores": [7.0]}]}
+    path.write_text(json.dumps({"tasks": {ENV: {"ppo": block}}}))
+    monkeypatch.setattr(bench_dmc_rl, "SHIP_DIR", tmp_path / "models")
+
+    def no_training(*args: Any, **kwargs: Any) -> None:
+        raise AssertionError("--ship-only must not train or score")
+
+    monkeypatch.setattr(bench_dmc_rl, "run_algo", no_training)
+    argv = ["--tasks", "pendulum-swingup", "--algos", "PPO", "--json", str(path), "--out", str(out), "--ship-only"]
+    bench_dmc_rl.main(argv)
+    stored = json.loads(path.read_text())["tasks"][ENV]["ppo"]
+    assert stored["model"] == str((tmp_path / "models" / "pendulum-swingup_ppo").resolve())
+    assert (stored["model_seed"], stored["model_scores"], stored["score_mean"]) == (0, [7.0], 1.0)
+    assert (tmp_path / "models" / "pendulum-swingup_ppo" / "model.zip").is_file()
+    with pytest.raises(ValueError, match="no ppo block for dm_control/cartpole-swingup-v0"):
+        bench_dmc_rl.main([*argv[:1], "cartpole-swingup", *argv[2:]])
