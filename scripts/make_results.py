@@ -867,8 +867,8 @@ def dmc_animations() -> list[str]:
     out = ["", "### The controllers from one start", "",
            "Each animation replays dm_control's own episodes from one reset seed, the evaluation seed whose start is "
            "farthest from upright, drawn by MuJoCo's renderer from the recorded physics states; each panel's score "
-           "is that controller's committed score on this seed. The RL policies are not animated: their trained "
-           "models are not committed ([the RL baselines](experiments/dmc-rl.md)). "
+           "is that controller's committed score on this seed. PPO's panel is the task's committed model (the seed "
+           "with the best validation point, [the RL baselines](experiments/dmc-rl.md)); SAC was not run. "
            "Command: `python benchmarks/animate_dmc.py`."]
     for task in DMC_TASKS:
         if task not in shown:
