@@ -105,7 +105,8 @@ def controllers(
         from seagul_learn.dmc_rl import load_sb3_dmc
 
         runs = json.loads(RL.read_text())
-        committed = _score(runs["tasks"][env_id][algo].get("model_scores"), runs.get("eval_seeds"), seed)
+        shipped = next(row for row in runs["tasks"][env_id][algo]["per_seed"] if row["seed"] == rl["model_seed"])
+        committed = _score(shipped["scores"], runs.get("eval_seeds"), seed)
         label = f"{algo.upper()}, {rl['env_steps'] / 1e6:.3g} M steps (seed {rl['model_seed']})"
         out.append((label, load_sb3_dmc(ROOT / rl["model"]), committed, 1))
     if reference:

@@ -16,7 +16,7 @@ checkpoint. The model of each seed selected on the validation episodes (reset se
 :func:`seagul_learn.dmc_rl.evaluate_sb3_dmc` on reset seeds 0-9. ``--steps`` defaults to each entry's
 ``n_timesteps`` (1,000,000 for both). ``--ship`` copies, per task and algorithm, the selected model of the seed with
 the best validation point to ``benchmarks/results/models/dmc/<task>_<algo>/`` (:func:`ship`; the block records it
-as ``model``, ``model_seed`` and ``model_scores``): ``seagul_learn.dmc_rl.load_sb3_dmc`` loads it, and
+as ``model`` and ``model_seed``): ``seagul_learn.dmc_rl.load_sb3_dmc`` loads it, and
 ``benchmarks/animate_dmc.py`` animates it. ``--ship-only`` does the same for the blocks already in ``--json FILE``
 without training or scoring anything; only the shipped seed's run must be in ``--out``.
 
@@ -144,9 +144,9 @@ MODEL_FILES = ("model.zip", "policy.json", "vecnormalize.pkl")
 def ship(env_id: str, algo: str, block: dict[str, Any], out: Path, dest: Path | None = None) -> dict[str, Any]:
     """Copy the selected model of the seed with the best validation point (its ``selected_at`` mean; ties: the
     lower seed) from its run in ``out`` to ``dest/<task>_<algo>/`` (default :data:`SHIP_DIR`) and record it in
-    ``block``: ``model`` (the directory, relative to the repository when inside it), ``model_seed`` and
-    ``model_scores`` (that seed's scores on :data:`EVAL_SEEDS`). Raises when the run's ``best/`` is missing or was
-    trained in another env."""
+    ``block``: ``model`` (the directory, relative to the repository when inside it) and ``model_seed`` (its scores
+    are that seed's row of ``per_seed``). A file of a previously shipped model that this run does not have is
+    removed. Raises when the run's ``best/`` is missing or was trained in another env or seed."""
     best = max(block["per_seed"], key=lambda row: (row["selected_at"]["mean"], -row["seed"]))
     source = out / short_name(env_id) / algo / f"seed{best['seed']}" / "best"
     meta_path = source / "policy.json"
@@ -160,11 +160,12 @@ def ship(env_id: str, algo: str, block: dict[str, Any], out: Path, dest: Path | 
     for name in MODEL_FILES:
         if (source / name).is_file():
             atomic_write_bytes(target / name, (source / name).read_bytes())
+        else:
+            (target / name).unlink(missing_ok=True)  # e.g. statistics of a normalised model shipped before
     shown = target.resolve()
     block.update(
         model=str(shown.relative_to(ROOT)) if shown.is_relative_to(ROOT) else str(shown),
         model_seed=best["seed"],
-        model_scores=best["scores"],
     )
     return block
 
@@ -178,13 +179,14 @@ def main(argv: list[str] | None = None) -> dict[str, Any]:
     parser.add_argument("--out", type=Path, default=ROOT / "runs" / "dmc_rl")
     parser.add_argument("--json", type=Path, default=None)
     parser.add_argument("--throughput", type=float, default=None, metavar="SECONDS")
-    parser.add_argument(
+    shipping = parser.add_mutually_exclusive_group()
+    shipping.add_argument(
         "--ship",
         action="store_true",
         help="copy each task's selected model (the seed with the best validation point) to "
         "benchmarks/results/models/dmc/<task>_<algo>/ and record it in the block",
     )
-    parser.add_argument(
+    shipping.add_argument(
         "--ship-only",
         action="store_true",
         help="ship the models of the blocks already in --json FILE without training or scoring (only the shipped "
