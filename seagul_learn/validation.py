@@ -28,6 +28,18 @@ from seagul_learn.solving import BatchSolver
 
 _VALIDATION_SEED = VALIDATION_SEED  # one validation set for all training seeds (seagul_envs.tasks.profile)
 
+_LOADED: dict[str, tuple[tuple[int, int], list[SolveRecord]]] = {}
+"""Complete validation sets read in this process, by cache directory, with the directory's stamp
+(:func:`_stamp`) when they were read: a process that trains many runs (seeds, samplers, an experiment) reads each
+set's record files once instead of once per run."""
+
+
+def _stamp(dataset: Dataset) -> tuple[int, int]:
+    """The records folder's modification time and file count: a record written, replaced (atomic renames) or removed
+    changes it, so a set that changed on disk is read again."""
+    folder = dataset.records_dir
+    return folder.stat().st_mtime_ns, sum(1 for _ in folder.iterdir())
+
 
 def default_cache_dir() -> Path:
     """``$SEAGUL_CACHE_DIR`` or ``~/.cache/seagul`` (:func:`seagul_control._io.cache_dir`)."""
@@ -75,11 +87,16 @@ def validation_dataset(
             dataset.write(SolveRecord.from_result(result, i, "validation"), exist_ok=True)  # races are harmless
         bar.update(len(chunk))
     bar.close()
+    cache_key, stamp = str(dataset.path.resolve()), _stamp(dataset)
+    loaded = _LOADED.get(cache_key)
+    if loaded is not None and loaded[0] == stamp and len(loaded[1]) == starts.shape[0]:
+        return list(loaded[1])  # read-only records, already checked against these starts below
     records = [dataset.read(i) for i in range(starts.shape[0])]
     for i, rec in enumerate(records):
         if not rec.same_request(starts[i], task.tau_nominal, None if robots is None else robots[i]):
             raise RuntimeError(f"validation cache {str(dataset.path)!r} holds another start at index {i}")
-    return records
+    _LOADED[cache_key] = (stamp, records)
+    return list(records)
 
 
 def validation_robots(task: Task, n: int) -> np.ndarray:

@@ -195,6 +195,25 @@ def test_validation_set_is_cached_and_follows_the_spec(tmp_path):
     assert len(g) == 11 and all(r.tau == 0.8 for r in g)
 
 
+def test_a_complete_validation_set_is_read_once_per_process_and_again_after_it_changes(tmp_path, monkeypatch):
+    task = make_task("acrobot")
+    small = ValidationSpec(grid_coords=(0, 1), grid_points=2, num_random=3)
+    first = validation_dataset(task, ToySolver(task), "toy", tmp_path, spec=small)
+    reads: list[int] = []
+    real_read = Dataset.read
+    monkeypatch.setattr(Dataset, "read", lambda self, i: reads.append(i) or real_read(self, i))
+    again = validation_dataset(task, ToySolver(task), "toy", tmp_path, spec=small)
+    assert reads == [] and [r.to_arrays().keys() for r in again] == [r.to_arrays().keys() for r in first]
+    for a, b in zip(first, again, strict=True):
+        np.testing.assert_array_equal(a.states, b.states)
+    # A record removed from the cache is solved again and the whole set re-read from disk.
+    (folder,) = tmp_path.glob("validation-acrobot-*")
+    sorted((folder / "records").glob("*.npz"))[0].unlink()
+    toy = ToySolver(task)
+    third = validation_dataset(task, toy, "toy", tmp_path, spec=small)
+    assert toy.num_solves == 1 and sorted(reads) == list(range(7)) and len(third) == 7
+
+
 def test_sobolev_term_matches_its_definition():
     task = make_task("acrobot")
     net = ValueNetwork(4, seed=0)
