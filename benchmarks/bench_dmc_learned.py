@@ -36,6 +36,12 @@ Each ``--domain`` (:data:`DOMAINS`) is one suite env with its training recipe an
 * ``cartpole_sparse`` (``dm_control/cartpole-swingup_sparse-v0``): the same task and the same networks (the
   suite's sparse task has the same physics; only its reward differs), deployed and scored in the sparse env.
 
+``--sampler closed-loop`` spends half the budget on those uniform starts and the rest in rounds of the closed-loop
+sampler (:mod:`seagul_learn.closed_loop`): 20 episodes a round from the same box, each flown by the LQR-guarded
+lookahead of the deployment's ``N`` intervals deciding once per interval (the training task's control period is set
+to the transcription step, which the sampler needs so that every plan's end is a tail of the task's problem), and
+half of each round's tail solves from the planned terminal states, half from the states the episodes visited.
+
 Training uses the project's trainer (:func:`seagul_learn.training.train`, ``TrainConfig(task=..., sampler=...)``)
 into ``/tmp/<network name>`` (:func:`run_dir`; with ``bench_train.json``, the run's wall time) and copies the
 network to ``benchmarks/results/networks/<task>_<sampler>_b<budget>_seed<k>.pt``. Angles are periodic
@@ -227,10 +233,18 @@ def train_config(sampler: str, budget: int, seed: int, domain: str = "pendulum")
     )
 
     d = DOMAINS[domain]
-    options: Any = UniformOptions() if sampler == "uniform" else ClosedLoopOptions(uniform_solves=budget // 2)
+    task = domain_task(d, training=True)
+    options: Any = UniformOptions()
+    if sampler == "closed-loop":
+        # The collector decides once per transcription interval (its plans' ends are then tails of the task's
+        # problem, which the sampler requires) over the deployment's number of intervals, interpreted.
+        task = dataclasses.replace(task, control_period=task.step_bounds[0])
+        options = ClosedLoopOptions(
+            uniform_solves=budget // 2, horizon=d.deployment.horizon, jit=False, visited_fraction=0.5
+        )
     per_round = d.solves_per_round
     return TrainConfig(
-        task=domain_task(d, training=True),
+        task=task,
         seed=seed,
         budget=budget,
         sampler=options,
@@ -293,14 +307,14 @@ def train(sampler: str, budget: int, seed: int, out: Path, guess: str = "plan", 
     """Train, copy the network into ``benchmarks/results/networks`` and return its path."""
     from seagul_learn.training import train as run
 
-    if guess != "plan" and domain != "pendulum":
+    if guess != "plan" and DOMAINS[domain].task != "dmc_pendulum":
         raise ValueError(f"--guess {guess} exists for the pendulum only, not {domain!r}")
     start = time.perf_counter()
     if guess == "plan":
         run(train_config(sampler, budget, seed, domain), out)
     else:
         solver = pumping_batch_solver(with_plan=guess == "multistart")
-        run(train_config(sampler, budget, seed), out, batch_solver=solver, solver_name=f"{guess}-bench")
+        run(train_config(sampler, budget, seed, domain), out, batch_solver=solver, solver_name=f"{guess}-bench")
     wall = time.perf_counter() - start
     target = network_path(sampler, budget, seed, guess, domain)
     target.parent.mkdir(parents=True, exist_ok=True)
