@@ -108,6 +108,11 @@ CURRENT: dict[str, tuple[str, str]] = {
         "and the held-out starts, the shipped model; the acrobot PPO sweep (`sweep`)",
         "python benchmarks/bench_rl_baselines.py --json benchmarks/results/rl_baselines.json",
     ),
+    "rl_near_goal_acrobot.json": (
+        "why the acrobot's PPO misses the 0.05 rule: its closest approach to upright per grid episode, its final "
+        "distance and speed, and PPO handing over to LQR near upright",
+        "python benchmarks/bench_rl_near_goal.py --json benchmarks/results/rl_near_goal_acrobot.json",
+    ),
     "baselines.json": (
         "every controller on the same starts: learned and quadratic-terminal MPC at N = 3-20, do-mpc, full "
         "horizon, LQR, PPO, SAC; success at 0.05-0.5, final-state distribution, step times",
