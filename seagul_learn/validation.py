@@ -61,7 +61,9 @@ def validation_dataset(
     The set is ``spec`` or the task's (``task.profile.validation_spec(task)``); with ``model_params`` every start
     is solved for a robot drawn uniformly from Theta (:func:`validation_robots`, a fixed seed). The cache entry is
     keyed by ``solver_name`` (give ``solver_key(options, task)`` for the real solver), the spec, ``tau`` and the task's
-    fingerprint, so a variant of a task (one parameter changed, same name) gets a validation set of its own.
+    fingerprint, so a variant of a task (one parameter changed, same name) gets a validation set of its own. A
+    complete set is read from disk once per process (:data:`_LOADED`): the records returned are shared between calls
+    and must not be modified.
     """
     spec = spec or task.profile.validation_spec(task)
     starts = spec.starts(task)

@@ -3,20 +3,15 @@ the deployment's lookahead deciding once per transcription interval, and the lab
 
 from __future__ import annotations
 
-import sys
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-ROOT = Path(__file__).resolve().parents[1]
-sys.path.insert(0, str(ROOT / "benchmarks"))
-
-import bench_dmc_learned as bench  # noqa: E402
-
-from seagul_learn.closed_loop import ClosedLoopSampler  # noqa: E402
-from seagul_learn.config import ClosedLoopOptions, UniformOptions  # noqa: E402
-from seagul_learn.samplers import StartPool  # noqa: E402
+from benchmarks import bench_dmc_learned as bench
+from seagul_learn.closed_loop import ClosedLoopSampler
+from seagul_learn.config import ClosedLoopOptions, UniformOptions
+from seagul_learn.samplers import StartPool
 
 
 def test_the_cartpoles_closed_loop_collector_decides_once_per_interval_over_the_deployments_lookahead() -> None:
