@@ -28,6 +28,10 @@ class NetworkConfig:
     ValueEnsemble`, whose CasADi form is pessimistic where the members disagree)."""
     pessimism: float = 1.0
     """Weight ``beta`` of the members' spread in an ensemble's CasADi form (``mean + beta * spread``)."""
+    robot_invariants: bool = False
+    """A value over robots (``model_params``) fed the logarithms of the products of parameters the task's dynamics
+    depend on (:attr:`~seagul_envs.tasks.parameters.ParameterSpace.invariants`) instead of ``theta``: robots that move
+    identically get one value. Needs a task that declares invariants."""
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "hidden", tuple(int(h) for h in self.hidden))

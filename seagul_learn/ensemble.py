@@ -62,9 +62,11 @@ class ValueEnsemble(nn.Module):
         theta: Any = None,
         task_fingerprint: str = "",
         periodic: Sequence[int] = (),
+        theta_features: Sequence[Sequence[float]] = (),
     ) -> None:
         """``members`` networks of one architecture (arguments as for :class:`ValueNetwork`; ``periodic``: the
-        state indices every member feeds as ``(cos q, sin q)``)."""
+        state indices every member feeds as ``(cos q, sin q)``; ``theta_features``: what every member sees of the
+        robot)."""
         super().__init__()
         if int(members) < 2:
             raise ValueError(f"an ensemble needs >= 2 members, got {members}")
@@ -81,6 +83,7 @@ class ValueEnsemble(nn.Module):
                 theta=theta,
                 task_fingerprint=task_fingerprint,
                 periodic=periodic,
+                theta_features=theta_features,
             )
             for k in range(int(members))
         )
@@ -161,6 +164,7 @@ class ValueEnsemble(nn.Module):
             n_params=self.n_params,
             task_fingerprint=self.task_fingerprint,
             periodic=self.periodic,
+            theta_features=self.config.theta_features,
         )
         for k, i in enumerate(idx):
             out.members[k].load_state_dict(self.members[i].state_dict())
@@ -215,6 +219,8 @@ class ValueEnsemble(nn.Module):
         }
         if self.periodic:  # only then: other files keep their layout
             config["periodic"] = list(self.periodic)
+        if self.config.theta_features:  # likewise
+            config["theta_features"] = [list(row) for row in self.config.theta_features]
         return write_value_file(path, ENSEMBLE_FORMAT_TAG, self.task_name, config, self, self.task_fingerprint)
 
     @classmethod
@@ -231,6 +237,7 @@ class ValueEnsemble(nn.Module):
                 n_params=int(c.get("n_params", 0)),
                 task_fingerprint=str(payload.get("task_fingerprint", "")),  # older files have none
                 periodic=tuple(c.get("periodic", ())),  # files of ensembles without periodic angles have none
+                theta_features=c.get("theta_features", ()),  # files of ensembles fed theta itself have none
             )
             ens.load_state_dict(payload["state_dict"])
         except Exception as exc:

@@ -194,12 +194,21 @@ def _members(network: ValueModel) -> list[ValueNetwork]:
 
 def make_network(config: TrainConfig, task: Task) -> ValueModel:
     """The run's (untrained) value function: a network, or an ensemble when ``config.network.ensemble >= 2``; over
-    robots (``model_params``) with the task's parameters as inputs, conditioned on the task's own values; the task's
-    periodic angles (:attr:`~seagul_envs.tasks.base.Task.periodic`) fed as ``(cos q, sin q)``."""
+    robots (``model_params``) with the task's parameters (or their invariant products, ``network.robot_invariants``)
+    as inputs, conditioned on the task's own values; the task's periodic angles
+    (:attr:`~seagul_envs.tasks.base.Task.periodic`) fed as ``(cos q, sin q)``."""
     robots = config.model_params and task.parameters is not None
     n_params = task.parameters.size if robots and task.parameters is not None else 0
     theta = task.theta if robots else None
     net = config.network
+    features: tuple[tuple[float, ...], ...] = ()
+    if net.robot_invariants:
+        if not robots or task.parameters is None or task.parameters.invariants is None:
+            raise ValueError(
+                f"network.robot_invariants needs a run over robots (model_params) of a task whose parameters declare "
+                f"invariants; {task.name} with model_params={config.model_params} does not"
+            )
+        features = task.parameters.feature_exponents()
     if net.ensemble >= 2:
         return ValueEnsemble(
             task.nx,
@@ -211,6 +220,7 @@ def make_network(config: TrainConfig, task: Task) -> ValueModel:
             n_params=n_params,
             theta=theta,
             periodic=task.periodic,
+            theta_features=features,
         )
     return ValueNetwork(
         task.nx,
@@ -220,6 +230,7 @@ def make_network(config: TrainConfig, task: Task) -> ValueModel:
         n_params=n_params,
         theta=theta,
         periodic=task.periodic,
+        theta_features=features,
     )
 
 

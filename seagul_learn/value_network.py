@@ -9,7 +9,10 @@ A network over robots, ``Vhat(x, tau, theta)`` (``n_params > 0``: the task's var
 docs/reference/spec.md §14), takes ``[x, tau, theta]``. Where ``theta`` is not given it uses its *condition*
 (:meth:`ValueNetwork.condition`, default the values it was built for): the robot an MPC plans for. The condition is the
 last entry block of the CasADi parameters, so an MPC built once re-plans for another robot (an estimate) with
-``set_value_function`` alone.
+``set_value_function`` alone. A network with ``theta_features`` (:class:`ValueNetworkConfig`) sees, instead of
+``theta``, the logarithms of the products of parameters the dynamics depend on: the glider's forces depend on the air
+density and the two plate areas only through ``rho * S_w`` and ``rho * S_e``, so robots along the remaining direction
+fly identically and get one value. The condition stays the robot itself; the CasADi parameters carry its features.
 
 A network for a task with periodic angles (``periodic``, :attr:`seagul_envs.tasks.base.Task.periodic`; the trainer
 passes the task's) feeds ``(cos q, sin q)`` of each periodic coordinate ``q`` to its first layer instead of the
@@ -87,11 +90,30 @@ class ValueNetworkConfig:
     """Physical parameters ``theta`` among the inputs (``[x, tau, theta]``); 0: ``Vhat(x, tau)``."""
     periodic: tuple[int, ...] = ()
     """State indices of 2 pi-periodic angles, fed as ``(cos q, sin q)`` (sorted; () for none)."""
+    theta_features: tuple[tuple[float, ...], ...] = ()
+    """The robot's features instead of ``theta`` itself (``n_params`` rows of ``n_params`` exponents ``E``; ()
+    feeds ``theta``): feature ``i`` is ``sum_j E_ij log theta_j``, the logarithm of a product of powers of the
+    parameters. The task's :attr:`~seagul_envs.tasks.parameters.ParameterSpace.invariants` give the products
+    the dynamics depend on, so robots that move identically get the same value (zero rows: unused inputs)."""
 
     @property
     def n_features(self) -> int:
         """Width of the first layer's input: ``nx + len(periodic) + 1 + n_params``."""
         return self.nx + len(self.periodic) + 1 + self.n_params
+
+
+def _check_features(rows: Sequence[Sequence[float]], n_params: int) -> tuple[tuple[float, ...], ...]:
+    """``theta_features`` as a tuple of rows; raises ValueError unless () or ``n_params`` rows of ``n_params``
+    finite exponents."""
+    out = tuple(tuple(float(v) for v in row) for row in rows)
+    if not out:
+        return ()
+    arr = np.array(out, dtype=float) if all(len(r) == len(out[0]) for r in out) else None
+    if n_params < 1 or arr is None or arr.shape != (n_params, n_params) or not np.all(np.isfinite(arr)):
+        raise ValueError(
+            f"theta_features must be {n_params} rows of {n_params} finite exponents (a network over robots), got {out}"
+        )
+    return out
 
 
 _Forward: TypeAlias = Callable[..., torch.Tensor]
@@ -161,6 +183,7 @@ class ValueNetwork(nn.Module):
         theta: Any = None,
         task_fingerprint: str = "",
         periodic: Sequence[int] = (),
+        theta_features: Sequence[Sequence[float]] = (),
     ) -> None:
         """Build the network; ``seed`` makes the initial weights reproducible without touching global RNG state.
         ``periodic``: state indices of 2 pi-periodic angles (the task's :attr:`~seagul_envs.tasks.base.Task.periodic`),
@@ -168,7 +191,8 @@ class ValueNetwork(nn.Module):
         ``n_params > 0`` adds the physical parameters to the inputs; ``theta`` is the initial condition (default
         zeros; the trainer sets the task's values). ``task_fingerprint``: the
         :meth:`~seagul_envs.tasks.base.Task.fingerprint` of the task the network is trained for ("" if unknown): an
-        MPC then refuses the network for a same-named variant of that task."""
+        MPC then refuses the network for a same-named variant of that task. ``theta_features``: the exponent rows
+        of :attr:`ValueNetworkConfig.theta_features` (a network over robots only)."""
         super().__init__()
         if int(nx) < 1:
             raise ValueError(f"nx must be >= 1, got {nx}")
@@ -178,7 +202,17 @@ class ValueNetwork(nn.Module):
         if not hidden or any(h < 1 for h in hidden):
             raise ValueError(f"hidden widths must be a non-empty sequence of positive integers, got {hidden}")
         self.config = ValueNetworkConfig(
-            nx=int(nx), hidden=hidden, n_params=int(n_params), periodic=check_periodic(int(nx), periodic)
+            nx=int(nx),
+            hidden=hidden,
+            n_params=int(n_params),
+            periodic=check_periodic(int(nx), periodic),
+            theta_features=_check_features(theta_features, int(n_params)),
+        )
+        k = self.config.n_params
+        self._exponents = (
+            torch.tensor(self.config.theta_features, dtype=DTYPE)
+            if self.config.theta_features
+            else torch.zeros((k, k), dtype=DTYPE)
         )
         self.task_name = str(task_name)
         self.task_fingerprint = str(task_fingerprint)
@@ -226,7 +260,19 @@ class ValueNetwork(nn.Module):
         arr = np.asarray(theta, dtype=np.float64)
         if arr.shape != (self.n_params,) or not np.all(np.isfinite(arr)):
             raise ValueError(f"theta must be {self.n_params} finite numbers, got {np.asarray(theta).tolist()}")
+        if self.config.theta_features and not np.all(arr > 0):
+            raise ValueError(f"theta must be positive for a network fed its logarithms, got {arr.tolist()}")
         self.theta_condition.copy_(torch.tensor(arr))
+
+    def robot_features(self, theta: Any) -> np.ndarray:
+        """What the first layer sees of the robot(s) ``theta`` (one vector or one row each): ``theta`` itself, or
+        with :attr:`ValueNetworkConfig.theta_features` ``log(theta) @ E.T`` (``theta`` must be positive)."""
+        arr = np.asarray(theta, dtype=np.float64)
+        if not self.config.theta_features:
+            return arr
+        if not np.all(arr > 0):
+            raise ValueError("theta must be positive for a network fed its logarithms (theta_features)")
+        return np.log(arr) @ self._exponents.numpy().T
 
     @property
     def theta(self) -> np.ndarray:
@@ -254,6 +300,8 @@ class ValueNetwork(nn.Module):
             raise ValueError(
                 f"theta must have shape ({self.n_params},) or ({x.shape[0]}, {self.n_params}), got {tuple(th.shape)}"
             )
+        if self.config.theta_features:
+            th = torch.log(th) @ self._exponents.T  # NaN for a non-positive theta, refused where theta enters
         return torch.cat([x, tau[:, None], th], dim=1)
 
     def forward_standardized(
@@ -300,7 +348,7 @@ class ValueNetwork(nn.Module):
     def _feature_rows(self, x: np.ndarray, tau: np.ndarray, theta: np.ndarray | None) -> np.ndarray:
         rows = [np.asarray(x, dtype=np.float64), np.asarray(tau, dtype=np.float64).reshape(-1, 1)]
         if self.n_params:
-            th = self.theta if theta is None else np.asarray(theta, dtype=np.float64)
+            th = self.robot_features(self.theta if theta is None else theta)
             rows.append(np.broadcast_to(th, (rows[0].shape[0], self.n_params)) if th.ndim == 1 else th)
         elif theta is not None:
             raise ValueError("theta given to a network without physical parameters (n_params=0)")
@@ -367,13 +415,13 @@ class ValueNetwork(nn.Module):
     # ----------------------------------------------------------------- casadi
     def casadi_parameters(self) -> np.ndarray:
         """``theta``: normalisation then each layer's weight (row-major) and bias, as one float64 vector (then the
-        condition, for a network over robots)."""
+        condition's features (:meth:`robot_features`, the condition itself by default), for a network over robots)."""
         parts = [self.in_mean, self.in_std]
         for layer in self.linear_layers:
             parts += [layer.weight.reshape(-1), layer.bias]
         parts += [self.out_mean, self.out_std]
         if self.n_params:
-            parts.append(self.theta_condition)
+            parts.append(torch.as_tensor(self.robot_features(self.theta), dtype=DTYPE))
         return torch.cat([p.detach().reshape(-1) for p in parts]).numpy().astype(np.float64)
 
     @property
@@ -413,6 +461,8 @@ class ValueNetwork(nn.Module):
         config: dict[str, Any] = {"nx": self.config.nx, "hidden": list(self.config.hidden), "n_params": self.n_params}
         if self.periodic:
             config["periodic"] = list(self.periodic)
+        if self.config.theta_features:  # likewise
+            config["theta_features"] = [list(row) for row in self.config.theta_features]
         return write_value_file(path, FORMAT_TAG, self.task_name, config, self, self.task_fingerprint)
 
     @classmethod
@@ -439,6 +489,7 @@ class ValueNetwork(nn.Module):
                 n_params=int(config.get("n_params", 0)),  # files of networks without robot parameters have none
                 task_fingerprint=str(payload.get("task_fingerprint", "")),  # older files have none
                 periodic=tuple(config.get("periodic", ())),  # files of networks without periodic angles have none
+                theta_features=config.get("theta_features", ()),  # files of networks fed theta itself have none
             )
             net.load_state_dict(payload["state_dict"])
         except Exception as exc:

@@ -226,3 +226,46 @@ def test_a_scaled_box_widens_each_side_by_its_ratio_to_the_nominal_value_and_nam
         space.scaled(2.0, space.high * 1.1)
     with pytest.raises(ValueError, match="positive values"):
         space.scaled(2.0, task.theta[:-1])
+
+
+def test_the_gliders_declared_invariants_are_what_its_dynamics_depend_on():
+    """Gliders with equal ``m``, ``rho * S_w`` and ``rho * S_e`` fly identically (the products of
+    ``ParameterSpace.invariants``), and changing any one of the products changes the motion."""
+    task = make_task("glider")
+    space = task.parameters
+    assert space is not None and space.invariants is not None
+    assert space.problems(task.params, task.nx, task.nu) == []
+    exps = np.array(space.feature_exponents())
+    assert exps.shape == (space.size, space.size) and np.all(exps[len(space.invariants) :] == 0)
+    rng = np.random.default_rng(3)
+    for _ in range(5):
+        theta = space.sample(rng)
+        c = rng.uniform(0.7, 1.4)
+        along = theta * np.array([1.0, 1.0 / c, 1.0 / c, c])  # rho up, both areas down: the same products
+        np.testing.assert_allclose(np.log(along) @ space.invariants.T, np.log(theta) @ space.invariants.T)
+        x = task.sample_x0(rng) + rng.normal(0, 0.3, task.nx)
+        u = rng.uniform(task.u_low, task.u_high)
+        np.testing.assert_allclose(
+            np.asarray(space.dynamics(x, u, along)).ravel(), np.asarray(space.dynamics(x, u, theta)).ravel(), rtol=1e-12
+        )
+        for j in range(len(space.invariants)):  # each product on its own moves the glider
+            other = theta * np.exp(0.1 * np.linalg.pinv(space.invariants)[:, j])
+            assert not np.allclose(np.asarray(space.dynamics(x, u, other)), np.asarray(space.dynamics(x, u, theta)))
+    bad = dataclasses.replace(space, invariants=np.ones((2, 3)))
+    assert any("invariants" in p for p in bad.problems(task.params, task.nx, task.nu))
+    with pytest.raises(ValueError, match="declare no invariants"):
+        make_task("acrobot").parameters.feature_exponents()
+
+
+def test_robot_invariants_reach_the_network_and_need_a_task_that_declares_them():
+    from seagul_learn.fitting import make_network
+    from seagul_learn.training import TrainConfig
+
+    glider = make_task("glider")
+    net = make_network(TrainConfig.recipe("glider", "robust-invariants", seed=0), glider)
+    assert net.config.theta_features == glider.parameters.feature_exponents()
+    np.testing.assert_array_equal(net.theta, glider.theta)
+    assert make_network(TrainConfig.recipe("glider", "robust", seed=0), glider).config.theta_features == ()
+    config = TrainConfig(model_params=True, network={"robot_invariants": True})
+    with pytest.raises(ValueError, match=r"robot_invariants.*acrobot"):
+        make_network(config, make_task("acrobot"))

@@ -326,3 +326,50 @@ def test_value_files_hold_the_documented_dict_and_refuse_what_is_not_one(tmp_pat
     torch.save({**payload, "version": 2}, tmp_path / "future_ens.pt")
     with pytest.raises(ValueNetworkFileError, match="version 2"):
         ValueNetwork.load(tmp_path / "future_ens.pt")
+
+
+def test_a_network_fed_the_robots_invariants_gives_identical_robots_one_value(tmp_path):
+    """``theta_features``: the first layer sees ``log(theta) @ E.T``; robots with equal features get equal values
+    and gradients that agree, in torch and in the CasADi form the MPC plans with (through the condition), and the
+    features survive a save and load."""
+    from seagul_envs.tasks import make_task
+
+    task = make_task("glider")
+    space = task.parameters
+    exps = space.feature_exponents()
+    net = ValueNetwork(task.nx, (16,), n_params=space.size, theta=task.theta, theta_features=exps, seed=0)
+    rng = np.random.default_rng(0)
+    x, tau, theta = rng.normal(size=(40, task.nx)), rng.uniform(0.5, 1.0, 40), space.sample(rng, 40)
+    net.set_normalization(x, tau, rng.normal(size=40), theta)
+    along = theta * np.array([1.0, 1 / 1.08, 1 / 1.08, 1.08])
+    np.testing.assert_allclose(net.predict(x, tau, along), net.predict(x, tau, theta), rtol=1e-12, atol=1e-12)
+    assert net.in_std[-1] == 1.0  # the zero row: a constant feature
+    # The same network fed theta itself tells these robots apart.
+    plain = ValueNetwork(task.nx, (16,), n_params=space.size, theta=task.theta, seed=0)
+    plain.set_normalization(x, tau, rng.normal(size=40), theta)
+    assert not np.allclose(plain.predict(x, tau, along), plain.predict(x, tau, theta))
+    # dV/dtheta by finite differences, and zero along the direction the dynamics do not see.
+    _, _, _, g = net.value_and_grads(x[:3], tau[:3], theta[:3])
+    h = 1e-6
+    for j in range(space.size):
+        e = np.zeros(space.size)
+        e[j] = h
+        fd = (net.predict(x[:3], tau[:3], theta[:3] + e) - net.predict(x[:3], tau[:3], theta[:3] - e)) / (2 * h)
+        np.testing.assert_allclose(g[:, j], fd, rtol=1e-6, atol=1e-8)
+    direction = theta[:3] * np.array([0.0, -1.0, -1.0, 1.0])  # d/dc of theta * (1, 1/c, 1/c, c) at c = 1
+    np.testing.assert_allclose(np.sum(g * direction, axis=1), 0.0, atol=1e-9)
+    # The CasADi form at the condition equals torch, and the condition stays the robot itself.
+    net.condition(theta[0])
+    np.testing.assert_array_equal(net.theta, theta[0])
+    fn = net.to_casadi()
+    np.testing.assert_allclose(float(fn(x[0], tau[0])), net.predict(x[:1], tau[:1], theta[0])[0], rtol=1e-12)
+    path = net.save(tmp_path / "inv.pt")
+    back = ValueNetwork.load(path)
+    assert back.config.theta_features == exps
+    np.testing.assert_array_equal(back.predict(x, tau, theta), net.predict(x, tau, theta))
+    with pytest.raises(ValueError, match="positive"):
+        net.condition(np.array([1.0, -0.1, 0.02, 1.2]))
+    with pytest.raises(ValueError, match="theta_features must be 4 rows"):
+        ValueNetwork(task.nx, (16,), n_params=space.size, theta_features=[[1.0, 0.0]])
+    with pytest.raises(ValueError, match="theta_features"):
+        ValueNetwork(task.nx, (16,), theta_features=exps)

@@ -188,6 +188,11 @@ THETA_SPREAD: tuple[float, ...] = (0.15, 0.1, 0.2, 0.1)
 effectiveness) and 10 % (air density: altitude and temperature)."""
 
 
+THETA_INVARIANTS = np.array([[1.0, 0.0, 0.0, 0.0], [0.0, 1.0, 0.0, 1.0], [0.0, 0.0, 1.0, 1.0]])
+"""The dynamics depend on ``(m, S_w, S_e, rho)`` only through ``m``, ``rho * S_w`` and ``rho * S_e`` (the plate
+forces of :func:`glider_xdot`): gliders with equal products fly identically (ParameterSpace.invariants)."""
+
+
 def glider_parameter_space(p: GliderParams) -> ParameterSpace:
     """``Theta`` around the parameters ``p`` (:data:`THETA_SPREAD`) and the dynamics ``f(x, u, theta)``."""
     own = np.array([getattr(p, n) for n in THETA_NAMES], dtype=float)
@@ -198,6 +203,7 @@ def glider_parameter_space(p: GliderParams) -> ParameterSpace:
         high=own * (1 + spread),
         units=THETA_UNITS,
         dynamics=parametric_dynamics("glider", 7, 1, THETA_NAMES, p, glider_xdot),
+        invariants=THETA_INVARIANTS,
     )
 
 

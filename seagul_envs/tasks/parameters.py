@@ -46,6 +46,11 @@ class ParameterSpace:
     extras: Callable[[Any], dict[str, Any]] | None = None
     """Optional: the task's physics ``extras`` for a parameter dataclass (e.g. the acrobot's mass matrix, which the
     MuJoCo test compares); :meth:`Task.with_params` replaces those entries."""
+    invariants: np.ndarray | None = None
+    """Optional: rows ``E_i`` of exponents such that ``f(x, u, theta)`` depends on ``theta`` only through the
+    products ``prod_j theta_j ** E_ij`` (a scaling symmetry of the dynamics, as dimensional analysis finds them).
+    Robots with equal products move identically, so no trajectory tells them apart and a value over robots need
+    not either (``NetworkConfig.robot_invariants``). None: every parameter matters on its own."""
 
     @property
     def size(self) -> int:
@@ -149,6 +154,17 @@ class ParameterSpace:
             self, low=center * (self.low / center) ** factor, high=center * (self.high / center) ** factor
         )
 
+    def feature_exponents(self) -> tuple[tuple[float, ...], ...]:
+        """:attr:`invariants` padded with zero rows to a square matrix (``ValueNetwork(theta_features=...)``).
+
+        Raises:
+            ValueError: the space declares no invariants.
+        """
+        if self.invariants is None:
+            raise ValueError(f"parameters {list(self.names)} declare no invariants")
+        rows = [tuple(float(v) for v in row) for row in np.asarray(self.invariants, dtype=float)]
+        return tuple(rows + [(0.0,) * self.size] * (self.size - len(rows)))
+
     def problems(self, params: Any, nx: int, nu: int) -> list[str]:
         """What is wrong with this space for a task with these parameters and sizes (empty when well formed)."""
         out: list[str] = []
@@ -168,6 +184,15 @@ class ParameterSpace:
                 out.append(f"parameters.{what} must be {k} finite numbers, got {arr!r}")
         if not out and np.any(self.low > self.high):
             out.append(f"parameters.low must be <= high, got {self.low.tolist()} and {self.high.tolist()}")
+        inv = self.invariants
+        if inv is not None and not (
+            isinstance(inv, np.ndarray)
+            and inv.ndim == 2
+            and 1 <= inv.shape[0] <= k
+            and inv.shape[1] == k
+            and np.all(np.isfinite(inv))
+        ):
+            out.append(f"parameters.invariants must be 1 to {k} rows of {k} finite exponents, got {inv!r}")
         if not (isinstance(self.units, tuple) and len(self.units) == k):
             out.append(f"parameters.units must give one unit per name ({k}), got {self.units!r}")
         fn = self.dynamics
