@@ -42,6 +42,10 @@ the ``"shipped"`` block (``network``, ``horizon``, ``estimate_robot``, ``success
 ``oracle_success_rate``, ``nominal_success_rate``, ``budget``, ``seeds``, ``starts``) and the ``"robust"`` block
 (per-seed rows, baselines, box sweep, estimator), keeping every other field of the file.
 Every evaluation is cached as JSON under ``--out`` and training resumes from its checkpoints, so a re-run continues.
+``--baselines-from FILE`` takes the baseline rows (every controller above but ``robust``) and the box sweep's
+nominal and oracle entries from FILE's task block instead of flying them again: they do not depend on the networks,
+and the oracle's full-horizon solves are most of a run's time. The rows are kept as they are (the file's block then
+says ``"baselines_reused_from"``), so only a benchmark with the same starts, robots and baselines should reuse them.
 The last line of stdout is the result as one JSON object.
 """
 
@@ -144,10 +148,10 @@ class RobustBenchConfig:
                 "sampler.episodes": 2,
                 "schedule.solves_per_round": 10,
                 "schedule.train_steps_per_round": 50,
-                "refit.steps": 200,
-                "refit.candidates": 0,
                 "runtime.progress": False,
             }
+            if TrainConfig.recipe(task, recipe).refit.steps:  # a short refit; none where the recipe has none
+                small.update({"refit.steps": 200, "refit.candidates": 0})
             return cls(
                 task=task,
                 recipe=recipe,
@@ -304,8 +308,15 @@ def dr_rows(bench: RobustBenchConfig, out: Path, workers: int, ship: bool, score
 
 
 def run_task(
-    bench: RobustBenchConfig, out: Path, workers: int, ship: bool, networks: list[Path] | None = None
+    bench: RobustBenchConfig,
+    out: Path,
+    workers: int,
+    ship: bool,
+    networks: list[Path] | None = None,
+    reuse: dict[str, Any] | None = None,
 ) -> dict[str, Any]:
+    """One task's blocks (module docstring); ``reuse``: a committed ``robust`` block whose baseline rows and box
+    sweep entries (all but the robust MPC's) are taken instead of flown again (``--baselines-from``)."""
     task = make_task(bench.task)
     space = task.parameters
     if space is None:
@@ -381,11 +392,17 @@ def run_task(
         baselines["nominal-ppo"] = PolicySpec(
             "sb3", "shipped PPO (trained on the model)", str(nominal_rl), (("algo", "PPO"),)
         )
-    rows = {}
-    for name, spec in baselines.items():
-        result = score(spec, name)
-        rows[name] = {"controller": spec.label, **{k: v for k, v in result.items() if k != "success"}}
-    rows.update(dr_rows(bench, out, workers, ship, score))
+    rows: dict[str, dict[str, Any]] = {}
+    if reuse is not None:
+        missing = sorted(set(baselines) - set(reuse["baselines"]))
+        if missing:
+            raise SystemExit(f"{bench.task}: --baselines-from has no rows {missing}; fly them (drop the option)")
+        rows = {name: dict(row) for name, row in reuse["baselines"].items()}
+    else:
+        for name, spec in baselines.items():
+            result = score(spec, name)
+            rows[name] = {"controller": spec.label, **{k: v for k, v in result.items() if k != "success"}}
+        rows.update(dr_rows(bench, out, workers, ship, score))
     shipped_spec = robust_spec(network, horizon)
     sweep: dict[str, dict[str, Any]] = {}
     swept: dict[str, PolicySpec | None] = {
@@ -403,7 +420,10 @@ def run_task(
             # the declared box's rows are the ones above (the shipped seed's, the baselines')
             own = f"robust-seed{chosen['seed']}" if name == "robust" else name
             key = own if scale == 1.0 else f"{own}-x{scale:g}"
-            entry[name] = score(candidate, key, robots_s)["success_rate"]
+            if reuse is not None and name != "robust":
+                entry[name] = reuse["box_sweep"][f"{scale:g}"][name]
+            else:
+                entry[name] = score(candidate, key, robots_s)["success_rate"]
         sweep[f"{scale:g}"] = entry
     n_est = min(bench.estimator_episodes, bench.starts)
     estimator = estimator_trace(bench.task, shipped_spec, starts[:n_est], robots[:n_est])
@@ -437,6 +457,8 @@ def run_task(
         "deployed": "LimitedLookaheadMPC(task, ValueNetwork.load(network), horizon=horizon, model_params=True, "
         "estimate_robot=True)",
     }
+    if reuse is not None:
+        robust["baselines_reused_from"] = reuse.get("baselines_reused_from", "an earlier run of this benchmark")
     return {"shipped": shipped, "robust": robust}
 
 
@@ -486,6 +508,11 @@ def plot(task_name: str, block: dict[str, Any], path: Path) -> None:
     plt.close(fig)
 
 
+def _reuse_label(block: dict[str, Any]) -> str:
+    """Which run reused baseline rows come from: the one with the block's recipe's networks."""
+    return f"this benchmark's run with the {block.get('recipe', '?')} recipe's networks"
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--quick", action="store_true", help="a minutes-long check of the pipeline")
@@ -506,6 +533,12 @@ def main(argv: list[str] | None = None) -> int:
         metavar="PT",
         help="evaluate these networks (one per seed, trained with the recipe) instead of training (one task)",
     )
+    parser.add_argument(
+        "--baselines-from",
+        default=None,
+        metavar="JSON",
+        help="take the baseline rows and the box sweep's baseline entries from this results file (module docstring)",
+    )
     parser.add_argument("--dry-run", action="store_true", help="print the settings as JSON; run nothing")
     args = parser.parse_args(argv)
     out = Path(args.out or f"/tmp/seagul-bench-robust{'-quick' if args.quick else ''}")
@@ -524,7 +557,14 @@ def main(argv: list[str] | None = None) -> int:
     result: dict[str, Any] = {}
     for bench in benches:
         networks = [Path(p) for p in args.networks] if args.networks else None
-        result[bench.task] = run_task(bench, out / bench.task, args.workers, args.ship, networks)
+        reuse = None
+        if args.baselines_from:
+            block = json.loads(Path(args.baselines_from).read_text()).get(bench.task, {}).get("robust")
+            if block is None:
+                raise SystemExit(f"{args.baselines_from} has no robust block for {bench.task}")
+            # rows already reused keep naming the run that flew them
+            reuse = {**block, "baselines_reused_from": block.get("baselines_reused_from") or _reuse_label(block)}
+        result[bench.task] = run_task(bench, out / bench.task, args.workers, args.ship, networks, reuse)
         if args.figure_dir:
             plot(bench.task, result[bench.task], Path(args.figure_dir) / f"{bench.task}_robust_shipped.png")
     result["machine"] = {**machine("torch"), "wall_s": round(time.perf_counter() - t0, 1)}

@@ -102,6 +102,13 @@ def _warn(message: str, stacklevel: int) -> None:
     warnings.warn(message, DeprecationWarning, stacklevel=stacklevel + 1)
 
 
+def _omitted(part: Any, name: str) -> bool:
+    """A section field written only when it differs from its default (``metadata={"omit_default": True}``): a field
+    added later leaves the recorded settings of runs that did not use it as they were."""
+    f = next(f for f in dataclasses.fields(part) if f.name == name)
+    return bool(f.metadata.get("omit_default")) and getattr(part, name) == f.default
+
+
 def _sampler_options(value: Any) -> SamplerOptions:
     """``value`` as a sampler options object: an object, a sampler name, or ``{"name": ..., **fields}``."""
     if isinstance(value, SamplerOptions):
@@ -328,7 +335,11 @@ class TrainConfig:
                 continue
             value = getattr(self, f.name)
             if f.name in SECTIONS:
-                value = {k: list(v) if isinstance(v, tuple) else v for k, v in dataclasses.asdict(value).items()}
+                value = {
+                    k: list(v) if isinstance(v, tuple) else v
+                    for k, v in dataclasses.asdict(value).items()
+                    if not _omitted(value, k)
+                }
             elif isinstance(value, dict):
                 value = dict(value)
             out[f.name] = value

@@ -4,7 +4,7 @@ is made, with errors that name the field by its place (``loss.sobolev_weight mus
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import ClassVar, Literal
 
 
@@ -28,7 +28,7 @@ class NetworkConfig:
     ValueEnsemble`, whose CasADi form is pessimistic where the members disagree)."""
     pessimism: float = 1.0
     """Weight ``beta`` of the members' spread in an ensemble's CasADi form (``mean + beta * spread``)."""
-    robot_invariants: bool = False
+    robot_invariants: bool = field(default=False, metadata={"omit_default": True})
     """A value over robots (``model_params``) fed the logarithms of the products of parameters the task's dynamics
     depend on (:attr:`~seagul_envs.tasks.parameters.ParameterSpace.invariants`) instead of ``theta``: robots that move
     identically get one value. Needs a task that declares invariants."""

@@ -153,3 +153,36 @@ def test_the_deployment_sweep_varies_the_shipped_deployment_of_the_committed_net
         for variant in block["variants"]:
             assert len(variant["success_per_seed"]) == len(block["networks"])
             assert variant["success_median"] == pytest.approx(float(np.median(variant["success_per_seed"])))
+
+
+def test_baselines_from_a_results_file_fly_only_the_robust_mpc(tmp_path, monkeypatch):
+    """``bench_robust.py --baselines-from``: the networks' rows are flown, every baseline row and the box sweep's
+    nominal and oracle entries are the file's, and the block says where they came from."""
+    from benchmarks import bench_robust
+
+    committed = RESULT["glider"]["robust"]
+    bench = bench_robust.RobustBenchConfig.for_task("glider", quick=True)
+    flown: list[str] = []
+
+    def fake_closed_loop(scorer, spec, starts, robots, workers, out):
+        flown.append(out.stem)
+        return {"success_rate": 0.5, "success": [True, False], "median_ms": 1.0}
+
+    monkeypatch.setattr(bench_robust, "closed_loop", fake_closed_loop)
+    monkeypatch.setattr(bench_robust, "estimator_trace", lambda *a, **k: {})
+    monkeypatch.setattr(bench_robust, "dr_rows", lambda *a, **k: pytest.fail("flew the RL baselines"))
+    nets = [ROOT / r["network"] for r in committed["per_seed"][:2]]
+    reuse = {**committed, "baselines_reused_from": "the committed run"}
+    block = bench_robust.run_task(bench, tmp_path, 1, False, nets, reuse)
+    # each seed once, then the shipped seed's (cached) declared box and the other two boxes
+    assert sorted(flown) == ["robust-seed0", "robust-seed0", "robust-seed0-x0.5", "robust-seed0-x2", "robust-seed1"]
+    robust = block["robust"]
+    assert robust["baselines"] == committed["baselines"] and robust["baselines_reused_from"] == "the committed run"
+    for scale, entry in robust["box_sweep"].items():
+        assert entry["robust"] == 0.5
+        assert {k: entry[k] for k in ("nominal", "oracle")} == {
+            k: committed["box_sweep"][scale][k] for k in ("nominal", "oracle")
+        }
+    assert block["shipped"]["oracle_success_rate"] == committed["baselines"]["oracle"]["success_rate"]
+    with pytest.raises(SystemExit, match="no rows"):
+        bench_robust.run_task(bench, tmp_path, 1, False, nets, {**reuse, "baselines": {}})
