@@ -368,3 +368,36 @@ def test_the_controllers_satisfy_sb3s_policy_predictor_protocol(acrobot) -> None
         actions, state = policy.predict(obs, state=None, episode_start=np.array([True]), deterministic=True)
         assert actions.shape == env.action_space.shape and env.action_space.contains(actions) and state is None
     env.close()
+
+
+def test_a_value_function_fed_its_robots_invariants_is_conditioned_after_loading(tmp_path: Path) -> None:
+    """A network (and an ensemble) over gliders fed ``log(theta) @ E.T`` (``theta_features``): the loaded MPC's
+    value at a robot equals the original's, and gliders with equal products get equal values."""
+    glider = make_task("glider")
+    space = glider.parameters
+    rng = np.random.default_rng(5)
+    robots = space.sample(rng, 64)
+    x0 = glider.sample_x0(rng, 64)
+    for vf in (
+        ValueNetwork(7, (8,), task_name="glider", seed=0, n_params=4, theta=glider.theta,
+                     theta_features=space.feature_exponents()),
+        ValueEnsemble(7, (8,), 2, task_name="glider", seed=0, n_params=4, theta=glider.theta,
+                      theta_features=space.feature_exponents()),
+    ):  # fmt: skip
+        for net in vf.networks if isinstance(vf, ValueEnsemble) else [vf]:
+            net.set_normalization(x0, rng.uniform(0.5, 1.0, 64), rng.uniform(0, 5, 64), robots)
+        mpc = LimitedLookaheadMPC(glider, vf, 3, FAST, model_params=True)
+        loaded = LimitedLookaheadMPC.load(mpc.save(tmp_path / f"{type(vf).__name__}.zip"))
+        saved = loaded.value_function
+        assert isinstance(saved, SavedValueFunction) and saved.n_params == 4
+        np.testing.assert_array_equal(saved.condition_exponents, space.feature_exponents())
+        robot = robots[0]
+        same = robot * np.array([1.0, 1 / 1.1, 1 / 1.1, 1.1])  # the same products: flies identically
+        values = []
+        for theta in (robot, same, robots[1], None):
+            mpc.set_robot(theta)
+            loaded.set_robot(theta)
+            value = mpc.terminal_cost_value(x0[0], 0.7)
+            assert loaded.terminal_cost_value(x0[0], 0.7) == pytest.approx(value, rel=1e-12)
+            values.append(value)
+        assert values[0] == pytest.approx(values[1], rel=1e-12) and values[0] != pytest.approx(values[2], rel=1e-6)

@@ -151,6 +151,7 @@ class SavedValueFunction:
         training_box: tuple[np.ndarray, np.ndarray] | None = None,
         condition_index: list[list[int]] | None = None,
         network_file: bytes | None = None,
+        condition_exponents: list[list[float]] | None = None,
     ) -> None:
         if "scalar" not in forms:
             raise ValueError("a saved value function needs its scalar form")
@@ -160,6 +161,10 @@ class SavedValueFunction:
         self.task_fingerprint = task_fingerprint
         self._box = training_box
         self.condition_index = condition_index
+        self.condition_exponents = None if condition_exponents is None else np.asarray(condition_exponents, dtype=float)
+        """The exponent rows ``E`` of a value function fed its robot's features ``log(theta) @ E.T`` (the
+        original's ``config.theta_features``; entry ``i`` of :attr:`condition_index` then holds feature ``i``), or
+        None: the condition is stored as is."""
         self.n_params = 0 if condition_index is None else len(condition_index)
         self.network_file = network_file
         """The original value function's own file (``ValueNetwork.save``), or None."""
@@ -188,8 +193,13 @@ class SavedValueFunction:
         arr = np.asarray(theta, dtype=float).ravel()
         if arr.shape != (self.n_params,) or not np.all(np.isfinite(arr)):
             raise ValueError(f"theta must be {self.n_params} finite numbers, got {np.asarray(theta).tolist()}")
+        stored = arr
+        if self.condition_exponents is not None:
+            if not np.all(arr > 0):
+                raise ValueError(f"theta must be positive for a value function fed its logarithms, got {arr.tolist()}")
+            stored = np.log(arr) @ self.condition_exponents.T
         for j, positions in enumerate(self.condition_index):
-            self.parameters[positions] = arr[j]
+            self.parameters[positions] = stored[j]
 
     def __deepcopy__(self, memo: dict[int, Any]) -> SavedValueFunction:
         # The CasADi functions are immutable and shared; the parameters are the copy's own.
@@ -201,6 +211,7 @@ class SavedValueFunction:
             training_box=self._box,
             condition_index=self.condition_index,
             network_file=self.network_file,
+            condition_exponents=None if self.condition_exponents is None else self.condition_exponents.tolist(),
         )
 
 
@@ -218,20 +229,39 @@ def _forms_of(vf: Any) -> dict[str, ca.Function]:
     return forms
 
 
-def _condition_index(vf: Any, robot: np.ndarray) -> list[list[int]]:
+def _condition_exponents(vf: Any) -> np.ndarray | None:
+    """The exponent rows ``E`` of a value function fed ``log(theta) @ E.T`` (``config.theta_features`` of a
+    ``seagul_learn`` network or ensemble, or a saved one's), or None."""
+    if isinstance(vf, SavedValueFunction):
+        return vf.condition_exponents
+    rows = getattr(getattr(vf, "config", None), "theta_features", ())
+    return np.asarray(rows, dtype=float) if rows else None
+
+
+def _condition_index(vf: Any, robot: np.ndarray, exponents: np.ndarray | None) -> list[list[int]]:
     """Where a value function over robots keeps its condition in ``casadi_parameters()``: probed on a copy by
-    conditioning on ``robot`` with one entry changed at a time (each entry must be stored as is)."""
+    conditioning on robots that change one stored entry at a time (``robot`` itself, or with ``exponents`` one of
+    its features ``log(theta) @ E.T``; each must be stored as is). A feature of a zero row never changes and keeps
+    no positions."""
     probe = copy.deepcopy(vf)
     probe.condition(robot)
     base = np.asarray(probe.casadi_parameters(), dtype=float).ravel()
-    index = []
+    index: list[list[int]] = []
     for j in range(robot.size):
-        changed = robot.copy()
-        changed[j] = robot[j] + 1.0 + abs(robot[j])
+        if exponents is None:
+            changed = robot.copy()
+            changed[j] = robot[j] + 1.0 + abs(robot[j])
+            expected = changed[j]
+        elif not np.any(exponents[j]):
+            index.append([])
+            continue
+        else:  # move log(theta) so that feature j alone changes, by 0.1
+            changed = robot * np.exp(0.1 * np.linalg.pinv(exponents)[:, j])
+            expected = float(np.log(changed) @ exponents[j])
         probe.condition(changed)
         params = np.asarray(probe.casadi_parameters(), dtype=float).ravel()
         positions = np.flatnonzero(params != base)
-        if positions.size == 0 or not np.all(params[positions] == changed[j]):
+        if positions.size == 0 or not np.allclose(params[positions], expected, rtol=1e-12, atol=1e-12):
             raise ValueError(
                 "cannot save a value function over robots whose condition is not stored as is in its CasADi parameters"
             )
@@ -252,7 +282,8 @@ def _value_function_members(mpc: Any) -> tuple[dict[str, Any] | None, dict[str, 
     np.save(buffer, params, allow_pickle=False)
     members[f"{_VF_DIR}/parameters.npy"] = buffer.getvalue()
     n_params = int(getattr(vf, "n_params", 0) or 0)
-    condition = _condition_index(vf, mpc.task.theta) if n_params > 0 else None
+    exponents = _condition_exponents(vf) if n_params > 0 else None
+    condition = _condition_index(vf, mpc.task.theta, exponents) if n_params > 0 else None
     network: bytes | None = getattr(vf, "network_file", None) if isinstance(vf, SavedValueFunction) else None
     save = getattr(vf, "save", None)
     if network is None and callable(save):
@@ -270,6 +301,7 @@ def _value_function_members(mpc: Any) -> tuple[dict[str, Any] | None, dict[str, 
         "n_parameters": int(params.size),
         "training_box": [np.asarray(low).tolist(), np.asarray(high).tolist()],
         "condition_index": condition,
+        "condition_exponents": None if exponents is None else exponents.tolist(),
         "network_file": _NETWORK_FILE if network is not None else None,
     }
     return entry, members
@@ -287,6 +319,7 @@ def _read_value_function(entry: Mapping[str, Any], members: Mapping[str, bytes])
         training_box=(np.asarray(low, dtype=float), np.asarray(high, dtype=float)),
         condition_index=entry.get("condition_index"),
         network_file=members.get(_NETWORK_FILE),
+        condition_exponents=entry.get("condition_exponents"),  # files of value functions fed theta itself: None
     )
 
 
