@@ -8,8 +8,8 @@ Usage::
 
 Per task, ``--seeds`` networks are trained with the task's recipe ``RobustBenchConfig.recipe``
 (``TrainConfig.recipe(task, recipe, seed=s)``, by default :data:`RECIPES`: the acrobot's ``shipped``, the nominal
-robot's recipe, and the glider's ``robust``, which learns ``V(x, tau, theta)`` over robots) and each is deployed as
-the shipped robust MPC::
+robot's recipe, and the glider's ``robust-invariants``, which learns ``V(x, tau, theta)`` over robots) and each is
+deployed as the shipped robust MPC::
 
     LimitedLookaheadMPC(task, ValueNetwork.load(network), horizon=H, model_params=True, estimate_robot=True)
 
@@ -45,7 +45,9 @@ Every evaluation is cached as JSON under ``--out`` and training resumes from its
 ``--baselines-from FILE`` takes the baseline rows (every controller above but ``robust``) and the box sweep's
 nominal and oracle entries from FILE's task block instead of flying them again: they do not depend on the networks,
 and the oracle's full-horizon solves are most of a run's time. The rows are kept as they are (the file's block then
-says ``"baselines_reused_from"``), so only a benchmark with the same starts, robots and baselines should reuse them.
+says ``"baselines_reused_from"``), so only a benchmark with the same starts, robots and baselines should reuse them;
+``--fly-baselines NAME ...`` flies the named ones again (those whose deployment changed since, e.g. the ones that
+share the robust MPC's online estimate), and the block lists them (``"baselines_flown"``).
 The last line of stdout is the result as one JSON object.
 """
 
@@ -83,10 +85,12 @@ from seagul_learn.experiment.runs import train_one  # noqa: E402
 from seagul_learn.shipped import shipped_network  # noqa: E402
 from seagul_learn.training import TrainConfig  # noqa: E402
 
-RECIPES = {"acrobot": "shipped", "glider": "robust"}
+RECIPES = {"acrobot": "shipped", "glider": "robust-invariants"}
 """Each task's recipe of the robust MPC's networks (``--recipe`` replaces it): the acrobot's nominal shipped recipe
 measured best over robots (its ``robust`` recipe over Theta did worse), the glider's nominal network does not carry
-over to other robots and its ``robust`` recipe learns over Theta."""
+over to other robots and its ``robust-invariants`` recipe learns over Theta, the value fed the products the dynamics
+depend on (its ``robust`` recipe, fed the four parameters, perches as often with the estimate and less often when
+the MPC knows the robot; docs/experiments/robust.md)."""
 DR_RL: dict[str, dict[str, int]] = {"glider": {"PPO": 2_000_000}}
 """Domain-randomised RL per task (``SB3Config(domain_randomization=True)``, the env's tuned entry): algorithm ->
 environment steps. The glider's PPO perches from every start of the model's robot at its nominal budget, 500 k steps
@@ -394,10 +398,19 @@ def run_task(
         )
     rows: dict[str, dict[str, Any]] = {}
     if reuse is not None:
-        missing = sorted(set(baselines) - set(reuse["baselines"]))
+        fly = set(reuse.get("fly", ()))
+        unknown = sorted(fly - set(baselines))
+        if unknown:
+            raise SystemExit(
+                f"{bench.task}: --fly-baselines names no baseline: {unknown}; there are {sorted(baselines)}"
+            )
+        missing = sorted(set(baselines) - set(reuse["baselines"]) - fly)
         if missing:
             raise SystemExit(f"{bench.task}: --baselines-from has no rows {missing}; fly them (drop the option)")
         rows = {name: dict(row) for name, row in reuse["baselines"].items()}
+        for name in sorted(fly):
+            result = score(baselines[name], name)
+            rows[name] = {"controller": baselines[name].label, **{k: v for k, v in result.items() if k != "success"}}
     else:
         for name, spec in baselines.items():
             result = score(spec, name)
@@ -459,6 +472,7 @@ def run_task(
     }
     if reuse is not None:
         robust["baselines_reused_from"] = reuse.get("baselines_reused_from", "an earlier run of this benchmark")
+        robust["baselines_flown"] = sorted(reuse.get("fly", ()))
     return {"shipped": shipped, "robust": robust}
 
 
@@ -539,6 +553,13 @@ def main(argv: list[str] | None = None) -> int:
         metavar="JSON",
         help="take the baseline rows and the box sweep's baseline entries from this results file (module docstring)",
     )
+    parser.add_argument(
+        "--fly-baselines",
+        nargs="+",
+        default=(),
+        metavar="NAME",
+        help="with --baselines-from: fly these baselines again (e.g. the ones whose deployment changed)",
+    )
     parser.add_argument("--dry-run", action="store_true", help="print the settings as JSON; run nothing")
     args = parser.parse_args(argv)
     out = Path(args.out or f"/tmp/seagul-bench-robust{'-quick' if args.quick else ''}")
@@ -564,6 +585,7 @@ def main(argv: list[str] | None = None) -> int:
                 raise SystemExit(f"{args.baselines_from} has no robust block for {bench.task}")
             # rows already reused keep naming the run that flew them
             reuse = {**block, "baselines_reused_from": block.get("baselines_reused_from") or _reuse_label(block)}
+            reuse["fly"] = list(args.fly_baselines)
         result[bench.task] = run_task(bench, out / bench.task, args.workers, args.ship, networks, reuse)
         if args.figure_dir:
             plot(bench.task, result[bench.task], Path(args.figure_dir) / f"{bench.task}_robust_shipped.png")

@@ -73,12 +73,9 @@ VARIANTS: tuple[Variant, ...] = (
         "estimate confined to Theta (default: 3x wider)",
         (("estimate_robot", (("box_scale", 1.0),)),),
     ),
-    Variant(
-        "estimate-weak-prior", "estimate's prior weight 1e-5 (default 1e-3)", (("estimate_robot", (("prior", 1e-5),)),)
-    ),
-    Variant(
-        "estimate-strong-prior", "estimate's prior weight 0.1 (default 1e-3)", (("estimate_robot", (("prior", 0.1),)),)
-    ),
+    Variant("estimate-prior-1e-3", "estimate's prior weight 1e-3", (("estimate_robot", (("prior", 1e-3),)),)),
+    Variant("estimate-prior-1e-7", "estimate's prior weight 1e-7", (("estimate_robot", (("prior", 1e-7),)),)),
+    Variant("estimate-strong-prior", "estimate's prior weight 0.1", (("estimate_robot", (("prior", 0.1),)),)),
 )
 """The deployments measured; ``horizon`` options are offsets from the shipped horizon."""
 

@@ -40,7 +40,9 @@ class ParameterEstimator:
             shorter than the swing forgets the transitions that determine ``theta``, and near rest the data leave
             parameters undetermined, so the prior pulls them back to the model's (a 20-transition window ended the
             acrobot's episodes with errors up to half the box; docs/experiments/robust.md).
-        prior: weight of the pull towards the task's own parameters, per squared box width.
+        prior: weight of the pull towards the task's own parameters, per squared box width (None: the task's
+            :attr:`~seagul_envs.tasks.parameters.ParameterSpace.estimator_prior`, 1e-3 unless the task says
+            otherwise).
         iterations: Gauss-Newton steps per :meth:`update`.
         box_scale: the estimate is kept inside Theta widened by this factor about the model's values
             (:meth:`~seagul_envs.tasks.parameters.ParameterSpace.scaled`; 1: Theta itself), so that a robot
@@ -59,7 +61,7 @@ class ParameterEstimator:
         task: Task,
         dt: float | None = None,
         window: int = 100,
-        prior: float = 1e-3,
+        prior: float | None = None,
         box_scale: float = 3.0,
         iterations: int = 3,
         min_transitions: int = 3,
@@ -71,6 +73,8 @@ class ParameterEstimator:
             raise ValueError(
                 f"window, iterations and min_transitions must be >= 1, got {window}, {iterations}, {min_transitions}"
             )
+        if prior is None:
+            prior = task.parameters.estimator_prior
         if not (np.isfinite(prior) and prior > 0):
             raise ValueError(f"prior must be a positive number, got {prior!r}")
         self.task = task

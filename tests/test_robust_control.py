@@ -95,6 +95,21 @@ def test_the_estimator_recovers_a_robot_from_its_transitions_and_resets_to_the_m
         ParameterEstimator(TASK, prior=0.0)
 
 
+def test_the_estimators_default_prior_is_the_tasks():
+    """``prior=None`` takes ``ParameterSpace.estimator_prior``: 1e-3 by default, the glider's 1e-5; a given prior
+    wins, and a space with a non-positive one is refused by its checks."""
+    import dataclasses
+
+    from seagul_envs import make_task
+
+    glider = make_task("glider")
+    assert ParameterEstimator(TASK, codegen=False).prior == TASK.parameters.estimator_prior == 1e-3
+    assert ParameterEstimator(glider, codegen=False).prior == glider.parameters.estimator_prior == 1e-5
+    assert ParameterEstimator(glider, prior=0.01, codegen=False).prior == 0.01
+    bad = dataclasses.replace(glider.parameters, estimator_prior=-1.0)
+    assert any("estimator_prior" in p for p in bad.problems(glider.params, glider.nx, glider.nu))
+
+
 def test_the_estimate_survives_a_balance_at_rest_that_says_nothing_about_the_robot():
     """A swing determines theta; then the robot rests upright (x_next = x for every theta). The default window
     keeps the swing, so the estimate stays at the truth; a window that forgets it lets the prior pull the

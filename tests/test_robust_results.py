@@ -145,7 +145,7 @@ def test_the_deployment_sweep_varies_the_shipped_deployment_of_the_committed_net
     assert (shipped.options, shipped.knows_robot) == (robust_spec(net, 10).options, False)
     by_name = {v.name: variant_spec(v, net, 10).option_dict() for v in VARIANTS}
     assert by_name["horizon-minus-2"]["horizon"] == 8 and by_name["horizon-plus-2"]["horizon"] == 12
-    assert dict(by_name["estimate-weak-prior"]["estimate_robot"]) == {"prior": 1e-5}
+    assert dict(by_name["estimate-prior-1e-3"]["estimate_robot"]) == {"prior": 1e-3}
     assert by_name["knows-robot"]["estimate_robot"] is False
     for task_name, block in ((k, v) for k, v in sweep.items() if k != "machine"):
         assert block["networks"] == [r["network"] for r in RESULT[task_name]["robust"]["per_seed"]]
@@ -186,3 +186,11 @@ def test_baselines_from_a_results_file_fly_only_the_robust_mpc(tmp_path, monkeyp
     assert block["shipped"]["oracle_success_rate"] == committed["baselines"]["oracle"]["success_rate"]
     with pytest.raises(SystemExit, match="no rows"):
         bench_robust.run_task(bench, tmp_path, 1, False, nets, {**reuse, "baselines": {}})
+    # a named baseline is flown again and replaces the file's row
+    flown.clear()
+    again = bench_robust.run_task(bench, tmp_path, 1, False, nets, {**reuse, "fly": ["nominal-estimate"]})
+    assert "nominal-estimate" in flown and again["robust"]["baselines"]["nominal-estimate"]["success_rate"] == 0.5
+    assert again["robust"]["baselines_flown"] == ["nominal-estimate"]
+    assert again["robust"]["baselines"]["oracle"] == committed["baselines"]["oracle"]
+    with pytest.raises(SystemExit, match="names no baseline"):
+        bench_robust.run_task(bench, tmp_path, 1, False, nets, {**reuse, "fly": ["nope"]})

@@ -51,6 +51,10 @@ class ParameterSpace:
     products ``prod_j theta_j ** E_ij`` (a scaling symmetry of the dynamics, as dimensional analysis finds them).
     Robots with equal products move identically, so no trajectory tells them apart and a value over robots need
     not either (``NetworkConfig.robot_invariants``). None: every parameter matters on its own."""
+    estimator_prior: float = 1e-3
+    """Default weight of an online estimate's pull towards the model's values, per squared box width
+    (``seagul_control.estimation.ParameterEstimator``'s ``prior``). It keeps what the data do not determine at the
+    model's values: an acrobot at rest says little about its masses."""
 
     @property
     def size(self) -> int:
@@ -193,6 +197,8 @@ class ParameterSpace:
             and np.all(np.isfinite(inv))
         ):
             out.append(f"parameters.invariants must be 1 to {k} rows of {k} finite exponents, got {inv!r}")
+        if not (isinstance(self.estimator_prior, (int, float)) and 0 < self.estimator_prior < np.inf):
+            out.append(f"parameters.estimator_prior must be a positive number, got {self.estimator_prior!r}")
         if not (isinstance(self.units, tuple) and len(self.units) == k):
             out.append(f"parameters.units must give one unit per name ({k}), got {self.units!r}")
         fn = self.dynamics
