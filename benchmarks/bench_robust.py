@@ -186,17 +186,22 @@ def train_all(bench: RobustBenchConfig, out: Path, workers: int) -> dict[int, Pa
 
 def estimator_trace(task_name: str, spec: PolicySpec, starts: np.ndarray, robots: np.ndarray) -> dict[str, Any]:
     """Episodes of ``spec`` with its estimate after every step: the error per parameter as a fraction of its width
-    in the declared box, and the whole step's time (estimate update plus solve)."""
+    in the declared box, and the whole step's time (estimate update plus solve). For a task that declares
+    invariants (``ParameterSpace.invariants``: the products the dynamics depend on, all that transitions can
+    determine) also each product's relative error ``|estimate / truth - 1|``: ``"invariants"`` (their names),
+    ``"invariant_max_error_median"`` (per step, the worst product, median over episodes) and
+    ``"invariant_final_error_median"``."""
     task = make_task(task_name)
     space = task.parameters
     assert space is not None
     width = space.high - space.low
     policy = build_policy(task, spec)
-    errors, step_ms, success = [], [], []
+    errors, step_ms, success, inv_errors = [], [], [], []
+    exps = space.invariants
     for x0, theta in zip(starts, robots, strict=True):
         env = episode_env(task)
         obs, info = env.reset(options={"state": np.asarray(x0, dtype=float), "params": np.asarray(theta)})
-        first, done, terminated, trace = True, False, False, []
+        first, done, terminated, trace, inv_trace = True, False, False, [], []
         while not done:
             t0 = time.perf_counter()
             action, _ = policy.predict(obs, episode_start=np.array([first]), deterministic=True)
@@ -205,11 +210,24 @@ def estimator_trace(task_name: str, spec: PolicySpec, starts: np.ndarray, robots
             obs, _, terminated, truncated, info = env.step(action)
             done = terminated or truncated
             trace.append(np.abs(policy.estimate(0) - theta) / width)
+            if exps is not None:
+                inv_trace.append(np.abs(np.exp((np.log(policy.estimate(0)) - np.log(theta)) @ exps.T) - 1.0))
         env.close()
+        inv_errors.append(np.array(inv_trace))
         success.append(is_success(task, np.asarray(info["state"], dtype=float), bool(terminated)))
         errors.append(np.array(trace))
     steps = min(len(e) for e in errors)
     worst = np.array([e[:steps].max(axis=1) for e in errors])  # per episode and step: the worst parameter
+    products: dict[str, Any] = {}
+    if exps is not None:
+        names = [_product_name(space.names, row) for row in exps]
+        products = {
+            "invariants": names,
+            "invariant_max_error_median": np.median([e[:steps].max(axis=1) for e in inv_errors], axis=0).tolist(),
+            "invariant_final_error_median": dict(
+                zip(names, np.median([e[-1] for e in inv_errors], axis=0).tolist(), strict=True)
+            ),
+        }
     return {
         "episodes": len(errors),
         "success_rate": float(np.mean(success)),
@@ -222,7 +240,14 @@ def estimator_trace(task_name: str, spec: PolicySpec, starts: np.ndarray, robots
         "steps_to_5pct_median": _finite(float(np.median([_first_below(w, 0.05) for w in worst]))),
         "step_ms_median": float(np.median(step_ms)),
         "step_ms_p95": float(np.percentile(step_ms, 95)),
+        **products,
     }
+
+
+def _product_name(names: tuple[str, ...], row: np.ndarray) -> str:
+    """``"S_w*rho"``-style name of the product ``prod_j names_j ** row_j`` (in the parameters' order)."""
+    parts = [n if e == 1 else f"{n}^{e:g}" for n, e in zip(names, row, strict=True) if e != 0]
+    return "*".join(parts) or "1"
 
 
 def _relative(path: Path) -> str:
@@ -513,6 +538,8 @@ def plot(task_name: str, block: dict[str, Any], path: Path) -> None:
     steps = np.arange(1, len(est["max_error_median"]) + 1)
     cx.plot(steps, est["max_error_median"], "C0-", label="median")
     cx.plot(steps, est["max_error_q90"], "C0:", label="90th percentile")
+    if "invariant_max_error_median" in est:  # what the transitions can determine (ParameterSpace.invariants)
+        cx.plot(steps, est["invariant_max_error_median"], "C1-", label="worst product, relative (median)")
     cx.set_yscale("log")
     cx.set_xlabel("control step")
     cx.set_ylabel("worst parameter error / box width")

@@ -891,11 +891,21 @@ def estimate_sentence(est: Mapping[str, Any]) -> str:
     within = (f"falls below 5 % of its box width after {steps:g} steps" if steps is not None
               else "does not stay below 5 % of its box width")
     final = ", ".join(f"`{k}` {pct(v)}" for k, v in est["final_error_median_per_parameter"].items())
+    products = ""
+    if "invariants" in est:  # what the transitions determine: the products the dynamics depend on
+        inv = ", ".join(f"`{k}` {pct(v)}" for k, v in est["invariant_final_error_median"].items())
+        products = (
+            f" The transitions determine only the products the dynamics depend on; their relative errors are "
+            f"{pct(est['invariant_max_error_median'][0])} at the first step and "
+            f"{pct(est['invariant_max_error_median'][-1])} at the last (the worst product, median), each at the "
+            f"end {inv}."
+        )
     return (
         f"The online estimate ({est['episodes']} episodes of the shipped robust MPC): the worst parameter's error "
         f"{within} (median episode); it is {pct(est['max_error_median'][0])} of the width at the first step and "
-        f"{pct(est['max_error_median'][-1])} at the last (median), each parameter's at the end {final}. A step "
-        f"(estimate and solve) takes {ms(est['step_ms_median'])} / {ms(est['step_ms_p95'])} ms (median / p95)."
+        f"{pct(est['max_error_median'][-1])} at the last (median), each parameter's at the end {final}.{products} "
+        f"A step (estimate and solve) takes {ms(est['step_ms_median'])} / {ms(est['step_ms_p95'])} ms "
+        "(median / p95)."
     )
 
 
