@@ -80,6 +80,7 @@ from seagul_control.evaluation import (  # noqa: E402
 )
 from seagul_control.policy_kinds import build_policy  # noqa: E402
 from seagul_envs import make_task  # noqa: E402
+from seagul_envs.tasks.parameters import log_features  # noqa: E402
 from seagul_learn.baselines import SB3Config, smoke_config, train_sb3  # noqa: E402
 from seagul_learn.experiment.runs import train_one  # noqa: E402
 from seagul_learn.shipped import shipped_network  # noqa: E402
@@ -211,7 +212,7 @@ def estimator_trace(task_name: str, spec: PolicySpec, starts: np.ndarray, robots
             done = terminated or truncated
             trace.append(np.abs(policy.estimate(0) - theta) / width)
             if exps is not None:
-                inv_trace.append(np.abs(np.exp((np.log(policy.estimate(0)) - np.log(theta)) @ exps.T) - 1.0))
+                inv_trace.append(np.abs(np.exp(log_features(policy.estimate(0), exps) - log_features(theta, exps)) - 1))
         env.close()
         inv_errors.append(np.array(inv_trace))
         success.append(is_success(task, np.asarray(info["state"], dtype=float), bool(terminated)))
@@ -421,7 +422,11 @@ def run_task(
         baselines["nominal-ppo"] = PolicySpec(
             "sb3", "shipped PPO (trained on the model)", str(nominal_rl), (("algo", "PPO"),)
         )
-    rows: dict[str, dict[str, Any]] = {}
+
+    def flown(name: str) -> dict[str, Any]:
+        result = score(baselines[name], name)
+        return {"controller": baselines[name].label, **{k: v for k, v in result.items() if k != "success"}}
+
     if reuse is not None:
         fly = set(reuse.get("fly", ()))
         unknown = sorted(fly - set(baselines))
@@ -433,13 +438,9 @@ def run_task(
         if missing:
             raise SystemExit(f"{bench.task}: --baselines-from has no rows {missing}; fly them (drop the option)")
         rows = {name: dict(row) for name, row in reuse["baselines"].items()}
-        for name in sorted(fly):
-            result = score(baselines[name], name)
-            rows[name] = {"controller": baselines[name].label, **{k: v for k, v in result.items() if k != "success"}}
+        rows.update({name: flown(name) for name in sorted(fly)})
     else:
-        for name, spec in baselines.items():
-            result = score(spec, name)
-            rows[name] = {"controller": spec.label, **{k: v for k, v in result.items() if k != "success"}}
+        rows = {name: flown(name) for name in baselines}
         rows.update(dr_rows(bench, out, workers, ship, score))
     shipped_spec = robust_spec(network, horizon)
     sweep: dict[str, dict[str, Any]] = {}

@@ -47,6 +47,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from seagul_envs.tasks.parameters import log_features
 from seagul_learn.value_casadi import CasadiForm, casadi_network, check_form, check_periodic, num_parameters
 from seagul_learn.value_files import (
     ENSEMBLE_FORMAT_TAG,
@@ -260,19 +261,15 @@ class ValueNetwork(nn.Module):
         arr = np.asarray(theta, dtype=np.float64)
         if arr.shape != (self.n_params,) or not np.all(np.isfinite(arr)):
             raise ValueError(f"theta must be {self.n_params} finite numbers, got {np.asarray(theta).tolist()}")
-        if self.config.theta_features and not np.all(arr > 0):
-            raise ValueError(f"theta must be positive for a network fed its logarithms, got {arr.tolist()}")
+        self.robot_features(arr)  # refuses a robot a network fed its logarithms cannot take
         self.theta_condition.copy_(torch.tensor(arr))
 
     def robot_features(self, theta: Any) -> np.ndarray:
         """What the first layer sees of the robot(s) ``theta`` (one vector or one row each): ``theta`` itself, or
         with :attr:`ValueNetworkConfig.theta_features` ``log(theta) @ E.T`` (``theta`` must be positive)."""
-        arr = np.asarray(theta, dtype=np.float64)
         if not self.config.theta_features:
-            return arr
-        if not np.all(arr > 0):
-            raise ValueError("theta must be positive for a network fed its logarithms (theta_features)")
-        return np.log(arr) @ self._exponents.numpy().T
+            return np.asarray(theta, dtype=np.float64)
+        return log_features(theta, self.config.theta_features)
 
     @property
     def theta(self) -> np.ndarray:

@@ -41,6 +41,7 @@ from seagul_control.io import atomic_write_bytes
 from seagul_control.mpc.options import FullHorizonOptions, MPCOptions
 from seagul_envs import make_task
 from seagul_envs.tasks.base import Task
+from seagul_envs.tasks.parameters import log_features
 
 FORMAT_TAG = "seagul-mpc"
 FORMAT_VERSION = 1
@@ -193,11 +194,7 @@ class SavedValueFunction:
         arr = np.asarray(theta, dtype=float).ravel()
         if arr.shape != (self.n_params,) or not np.all(np.isfinite(arr)):
             raise ValueError(f"theta must be {self.n_params} finite numbers, got {np.asarray(theta).tolist()}")
-        stored = arr
-        if self.condition_exponents is not None:
-            if not np.all(arr > 0):
-                raise ValueError(f"theta must be positive for a value function fed its logarithms, got {arr.tolist()}")
-            stored = np.log(arr) @ self.condition_exponents.T
+        stored = arr if self.condition_exponents is None else log_features(arr, self.condition_exponents)
         for j, positions in enumerate(self.condition_index):
             self.parameters[positions] = stored[j]
 
@@ -257,7 +254,7 @@ def _condition_index(vf: Any, robot: np.ndarray, exponents: np.ndarray | None) -
             continue
         else:  # move log(theta) so that feature j alone changes, by 0.1
             changed = robot * np.exp(0.1 * np.linalg.pinv(exponents)[:, j])
-            expected = float(np.log(changed) @ exponents[j])
+            expected = float(log_features(changed, exponents[j]))
         probe.condition(changed)
         params = np.asarray(probe.casadi_parameters(), dtype=float).ravel()
         positions = np.flatnonzero(params != base)

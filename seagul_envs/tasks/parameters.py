@@ -211,6 +211,19 @@ class ParameterSpace:
         return out
 
 
+def log_features(theta: Any, exponents: Any) -> np.ndarray:
+    """``log(theta) @ E.T`` for one robot or one per row: the logarithms of the products ``prod_j theta_j ** E_ij``
+    (:attr:`ParameterSpace.invariants`, or their square padding :meth:`ParameterSpace.feature_exponents`).
+
+    Raises:
+        ValueError: a parameter is not positive (no logarithm).
+    """
+    arr = np.asarray(theta, dtype=np.float64)
+    if not np.all(arr > 0):
+        raise ValueError(f"theta must be positive to take its logarithms, got {arr.tolist()}")
+    return np.log(arr) @ np.asarray(exponents, dtype=np.float64).T
+
+
 def parametric_dynamics(
     name: str, nx: int, nu: int, names: tuple[str, ...], params: Any, xdot: Callable[[ca.SX, ca.SX, Any], ca.SX]
 ) -> ca.Function:
