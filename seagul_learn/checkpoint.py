@@ -14,6 +14,7 @@ import torch
 from seagul_control._io import atomic_write_bytes, atomic_write_text
 from seagul_learn.config import TrainConfig
 from seagul_learn.fitting import Trainer
+from seagul_learn.round_selection import save_round
 from seagul_learn.samplers import Sampler
 from seagul_learn.value_network import ValueModel
 
@@ -23,7 +24,8 @@ CHECKPOINT_FORMAT = "seagul-train-checkpoint"
 def keep_best(out: Path, config: TrainConfig, log: list[dict[str, Any]], collecting: ValueModel, solves: int) -> None:
     """``sampler.keep_best``: save ``collecting`` as ``network_best.pt`` when the round just logged is the best deployed
     collector so far (ties: the later). The best so far is recomputed from the log (resume-safe: a redone round
-    rewrites the same file)."""
+    rewrites the same file). With ``selection.rounds`` every closed-loop round's collector is also kept
+    (:func:`seagul_learn.round_selection.save_round`)."""
     deployed = config.closed_loop_options().trust_region or config.resolve_task().profile.mpc.trust_region
 
     def rate(entry: dict[str, Any]) -> float | None:
@@ -33,10 +35,6 @@ def keep_best(out: Path, config: TrainConfig, log: list[dict[str, Any]], collect
 
     if not log or (now := rate(log[-1])) is None:
         return
-    earlier = [r for r in (rate(e) for e in log[:-1]) if r is not None]
-    if earlier and now < max(earlier):
-        return
-    collecting.save(out / "network_best.pt")
     entry = log[-1]
     info = {
         "round": int(entry["round"]),
@@ -45,6 +43,12 @@ def keep_best(out: Path, config: TrainConfig, log: list[dict[str, Any]], collect
         "solves_before_round": int(solves),
         "note": "the network the round's collector flew (trained on the solves before the round)",
     }
+    if config.selection.rounds:  # every round is a candidate of the final selection (seagul_learn.round_selection)
+        save_round(out, collecting, info)
+    earlier = [r for r in (rate(e) for e in log[:-1]) if r is not None]
+    if earlier and now < max(earlier):
+        return
+    collecting.save(out / "network_best.pt")
     atomic_write_text(out / "network_best.json", json.dumps(info, indent=1) + "\n")
 
 

@@ -276,6 +276,11 @@ class TrainConfig:
                 "sampler.keep_best needs refit.steps = 0 (it deploys a network a collector flew; "
                 f"got refit.steps={self.refit.steps})"
             )
+        if self.selection.rounds and not (closed_loop and self.sampler.keep_best):  # type: ignore[union-attr]
+            raise ValueError(
+                "selection.rounds chooses among the rounds sampler.keep_best keeps: it needs the closed-loop sampler "
+                f"with keep_best (got sampler {self.sampler.name!r})"
+            )
         if self.model_params:
             task = self.resolve_task()
             if task.parameters is None:

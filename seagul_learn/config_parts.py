@@ -141,8 +141,9 @@ class RefitConfig:
 
 @dataclass(frozen=True)
 class SelectionConfig:
-    """How the members of ``refit.candidates`` are chosen: closed-loop episodes of the deployed MPC (horizon and
-    guard of the closed-loop options) from training starts drawn from X0, never an evaluation set."""
+    """How the members of ``refit.candidates`` are chosen, or (``rounds``) which closed-loop round's network is
+    deployed: closed-loop episodes of the deployed MPC (horizon and guard of the closed-loop options) from training
+    starts drawn from X0 (on robots from Theta over robots), never an evaluation set."""
 
     episodes: int = 100
     """Closed-loop episodes per candidate subset."""
@@ -157,8 +158,14 @@ class SelectionConfig:
     grid's points."""
     jit: bool = True
     """Compile the selection's MPC (False: interpreted, for tests)."""
+    rounds: int = field(default=0, metadata={"omit_default": True})
+    """With ``sampler.keep_best``: keep every closed-loop round's collecting network, and at the end let the
+    ``rounds`` networks whose collectors succeeded most often fly ``episodes`` selection episodes (the best
+    ``finalists`` then ``final_episodes`` more); the one with the most successes is deployed
+    (:mod:`seagul_learn.round_selection`). 0: deploy the round whose collector flew best."""
 
     def __post_init__(self) -> None:
+        _check(self.rounds >= 0, f"selection.rounds must be >= 0, got {self.rounds}")
         _check(self.episodes >= 1, f"selection.episodes must be >= 1, got {self.episodes}")
         _check(self.finalists >= 0, f"selection.finalists must be >= 0, got {self.finalists}")
         _check(self.final_episodes >= 0, f"selection.final_episodes must be >= 0, got {self.final_episodes}")

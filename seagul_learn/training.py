@@ -101,6 +101,7 @@ from seagul_learn.fitting import (
     _as_tensors as fitting_as_tensors,
 )
 from seagul_learn.refit import candidates_key, refit, refit_and_select
+from seagul_learn.round_selection import deploy_selected, select_kept_round
 from seagul_learn.samplers import (
     AdversarialOptions,
     AdversarialSampler,
@@ -423,6 +424,8 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
         trainer.record_metric(
             len(budget_records), count_failures(budget_records), config.schedule.pretrain_solves + len(budget_records)
         )
+    if closed_loop.keep_best and config.selection.rounds:
+        deploy_selected(out, select_kept_round(config, task, out))
     if closed_loop.keep_best and (out / "network_best.pt").is_file():
         network.save(out / "network_last.pt")
         network = ValueNetwork.load(out / "network_best.pt")

@@ -222,6 +222,16 @@ def test_the_robust_recipes_are_the_default_ones_over_robots_within_3000_solves(
     assert TrainConfig.recipe("glider", "robust") == TrainConfig.recipe("glider").replaced(**over_robots, **glider)
     acrobot = {"budget": 2000, "refit.candidates": 0, "runtime.snapshots": (1000, 2000)}
     assert TrainConfig.recipe("acrobot", "robust") == TrainConfig.recipe("acrobot").replaced(**over_robots, **acrobot)
+    # the glider's shipped robust recipes: the value fed the robot's invariants, then the round chosen on more episodes
+    invariants = TrainConfig.recipe("glider", "robust-invariants")
+    assert invariants == TrainConfig.recipe("glider", "robust").replaced(**{"network.robot_invariants": True})
+    select = {
+        "selection.rounds": 10,
+        "selection.episodes": 40,
+        "selection.finalists": 3,
+        "selection.final_episodes": 100,
+    }
+    assert TrainConfig.recipe("glider", "robust-select") == invariants.replaced(**select)
 
 
 def test_recipes_overrides_and_other_samplers():
