@@ -8,7 +8,7 @@ Usage::
 
 Per task, ``--seeds`` networks are trained with the task's recipe ``RobustBenchConfig.recipe``
 (``TrainConfig.recipe(task, recipe, seed=s)``, by default :data:`RECIPES`: the acrobot's ``shipped``, the nominal
-robot's recipe, and the glider's ``robust-invariants``, which learns ``V(x, tau, theta)`` over robots) and each is
+robot's recipe, and the glider's ``robust-select``, which learns ``V(x, tau, theta)`` over robots) and each is
 deployed as the shipped robust MPC::
 
     LimitedLookaheadMPC(task, ValueNetwork.load(network), horizon=H, model_params=True, estimate_robot=True)
@@ -86,12 +86,13 @@ from seagul_learn.experiment.runs import train_one  # noqa: E402
 from seagul_learn.shipped import shipped_network  # noqa: E402
 from seagul_learn.training import TrainConfig  # noqa: E402
 
-RECIPES = {"acrobot": "shipped", "glider": "robust-invariants"}
+RECIPES = {"acrobot": "shipped", "glider": "robust-select"}
 """Each task's recipe of the robust MPC's networks (``--recipe`` replaces it): the acrobot's nominal shipped recipe
 measured best over robots (its ``robust`` recipe over Theta did worse), the glider's nominal network does not carry
-over to other robots and its ``robust-invariants`` recipe learns over Theta, the value fed the products the dynamics
-depend on (its ``robust`` recipe, fed the four parameters, perches as often with the estimate and less often when
-the MPC knows the robot; docs/experiments/robust.md)."""
+over to other robots and its ``robust-select`` recipe learns over Theta, the value fed the products the dynamics
+depend on (``robust-invariants``; fed the four parameters, the ``robust`` recipe perches as often with the estimate
+and less often when the MPC knows the robot), the deployed round chosen on selection episodes (``selection.rounds``;
+the round whose collector flew best perched less often on validation starts x robots; docs/experiments/robust.md)."""
 DR_RL: dict[str, dict[str, int]] = {"glider": {"PPO": 2_000_000}}
 """Domain-randomised RL per task (``SB3Config(domain_randomization=True)``, the env's tuned entry): algorithm ->
 environment steps. The glider's PPO perches from every start of the model's robot at its nominal budget, 500 k steps
@@ -155,8 +156,11 @@ class RobustBenchConfig:
                 "schedule.train_steps_per_round": 50,
                 "runtime.progress": False,
             }
-            if TrainConfig.recipe(task, recipe).refit.steps:  # a short refit; none where the recipe has none
+            full = TrainConfig.recipe(task, recipe)
+            if full.refit.steps:  # a short refit; none where the recipe has none
                 small.update({"refit.steps": 200, "refit.candidates": 0})
+            if full.selection.rounds:  # the one closed-loop round, two selection episodes
+                small.update({"selection.rounds": 1, "selection.episodes": 2, "selection.finalists": 0})
             return cls(
                 task=task,
                 recipe=recipe,
@@ -611,8 +615,11 @@ def main(argv: list[str] | None = None) -> int:
             block = json.loads(Path(args.baselines_from).read_text()).get(bench.task, {}).get("robust")
             if block is None:
                 raise SystemExit(f"{args.baselines_from} has no robust block for {bench.task}")
-            # rows already reused keep naming the run that flew them
-            reuse = {**block, "baselines_reused_from": block.get("baselines_reused_from") or _reuse_label(block)}
+            # rows already reused keep naming the run that flew them; rows that run flew again name it
+            origin = block.get("baselines_reused_from") or _reuse_label(block)
+            if block.get("baselines_reused_from") and block.get("baselines_flown"):
+                origin = f"{origin}; {', '.join(block['baselines_flown'])}: {_reuse_label(block)}"
+            reuse = {**block, "baselines_reused_from": origin}
             reuse["fly"] = list(args.fly_baselines)
         result[bench.task] = run_task(bench, out / bench.task, args.workers, args.ship, networks, reuse)
         if args.figure_dir:
