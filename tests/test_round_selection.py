@@ -28,6 +28,22 @@ def _keep(tmp_path, collector_wins: list[int], over_robots: bool = False) -> lis
     return nets
 
 
+def _select(run, **kw):
+    """``select_round`` on the acrobot with a 2-step interpreted MPC; ``kw`` replaces the defaults."""
+    args = {
+        "rounds": 3,
+        "episodes": 8,
+        "finalists": 0,
+        "final_episodes": 0,
+        "seed": 2,
+        "over_robots": False,
+        "trust_region": "none",
+        "horizon": 2,
+        "jit": False,
+    }
+    return select_round(TASK, run, **{**args, **kw})
+
+
 def _fake_episodes(monkeypatch, nets, rate_of: dict[int, float], seen: list):
     """No episode is flown: the MPC's value parameters name the network, whose ``rate_of`` decides success by the
     start (a start's first coordinate maps to [0, 1))."""
@@ -55,19 +71,7 @@ def test_select_round_flies_the_best_collecting_rounds_and_deploys_the_most_succ
     seen: list = []
     # the collectors' favourites (rounds 3 and 1) are not the best flyers: round 2 is
     _fake_episodes(monkeypatch, nets, {0: 0.9, 1: 0.3, 2: 0.95, 3: 0.5, 4: 1.0}, seen)
-    sel = select_round(
-        TASK,
-        tmp_path,
-        rounds=3,
-        episodes=8,
-        finalists=0,
-        final_episodes=0,
-        seed=2,
-        over_robots=False,
-        trust_region="none",
-        horizon=2,
-        jit=False,
-    )
+    sel = _select(tmp_path)
     assert set(sel.candidates) == {"10", "20", "30"}  # rounds 1, 2, 3; not 0 or 4 (collectors 1 and 0 wins)
     assert {who for who, _, _ in seen} == {1, 2, 3}
     starts = {who: {x for w, x, _ in seen if w == who} for who in (1, 2, 3)}
@@ -76,19 +80,7 @@ def test_select_round_flies_the_best_collecting_rounds_and_deploys_the_most_succ
     assert sel.selection_success == sel.candidates["20"] and sel.episode_successes == 2 and sel.episodes == 4
     # a second stage on other starts, ranked over all episodes
     seen.clear()
-    two = select_round(
-        TASK,
-        tmp_path,
-        rounds=3,
-        episodes=8,
-        finalists=2,
-        final_episodes=5,
-        seed=2,
-        over_robots=False,
-        trust_region="none",
-        horizon=2,
-        jit=False,
-    )
+    two = _select(tmp_path, finalists=2, final_episodes=5)
     assert set(two.finalists) == {"20", "30"} and two.selection_episodes == 13
     assert len({x for w, x, _ in seen if w == 2}) == 13 and len({x for w, x, _ in seen if w == 1}) == 8
     path = deploy_selected(tmp_path, two)
@@ -96,52 +88,16 @@ def test_select_round_flies_the_best_collecting_rounds_and_deploys_the_most_succ
     info = json.loads((tmp_path / "network_best.json").read_text())
     assert info["round"] == two.round and info["selection_episodes"] == 13 and "20" in info["candidates"]
     with pytest.raises(ValueError, match="rounds >= 1"):
-        select_round(
-            TASK,
-            tmp_path,
-            rounds=0,
-            episodes=8,
-            finalists=0,
-            final_episodes=0,
-            seed=2,
-            over_robots=False,
-            trust_region="none",
-            horizon=2,
-            jit=False,
-        )
+        _select(tmp_path, rounds=0)
     with pytest.raises(ValueError, match="holds no kept round"):
-        select_round(
-            TASK,
-            tmp_path / "empty",
-            rounds=1,
-            episodes=1,
-            finalists=0,
-            final_episodes=0,
-            seed=2,
-            over_robots=False,
-            trust_region="none",
-            horizon=2,
-            jit=False,
-        )
+        _select(tmp_path / "empty", rounds=1, episodes=1)
 
 
 def test_select_round_over_robots_flies_every_candidate_on_the_same_robots_from_theta(tmp_path, monkeypatch):
     nets = _keep(tmp_path, [2, 3], over_robots=True)
     seen: list = []
     _fake_episodes(monkeypatch, nets, {0: 0.5, 1: 0.5}, seen)
-    sel = select_round(
-        TASK,
-        tmp_path,
-        rounds=2,
-        episodes=4,
-        finalists=0,
-        final_episodes=0,
-        seed=0,
-        over_robots=True,
-        trust_region="none",
-        horizon=2,
-        jit=False,
-    )
+    sel = _select(tmp_path, rounds=2, episodes=4, seed=0, over_robots=True)
     robots = {who: [r for w, _, r in seen if w == who] for who in (0, 1)}
     assert robots[0] == robots[1] and len(set(robots[0])) == 4
     space = TASK.parameters
