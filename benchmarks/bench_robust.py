@@ -207,6 +207,7 @@ def estimator_trace(task_name: str, spec: PolicySpec, starts: np.ndarray, robots
         env = episode_env(task)
         obs, info = env.reset(options={"state": np.asarray(x0, dtype=float), "params": np.asarray(theta)})
         first, done, terminated, trace, inv_trace = True, False, False, [], []
+        true_features = None if exps is None else log_features(theta, exps)
         while not done:
             t0 = time.perf_counter()
             action, _ = policy.predict(obs, episode_start=np.array([first]), deterministic=True)
@@ -214,9 +215,10 @@ def estimator_trace(task_name: str, spec: PolicySpec, starts: np.ndarray, robots
             first = False
             obs, _, terminated, truncated, info = env.step(action)
             done = terminated or truncated
-            trace.append(np.abs(policy.estimate(0) - theta) / width)
+            estimate = policy.estimate(0)
+            trace.append(np.abs(estimate - theta) / width)
             if exps is not None:
-                inv_trace.append(np.abs(np.exp(log_features(policy.estimate(0), exps) - log_features(theta, exps)) - 1))
+                inv_trace.append(np.abs(np.exp(log_features(estimate, exps) - true_features) - 1))
         env.close()
         inv_errors.append(np.array(inv_trace))
         success.append(is_success(task, np.asarray(info["state"], dtype=float), bool(terminated)))

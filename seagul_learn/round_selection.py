@@ -3,7 +3,7 @@
 ``keep_best`` deploys the network whose round's collector perched most often, a choice made on that round's 20
 episodes, each on its own start (and robot). Over robots those counts are noisy: on the glider one seed's networks of
 neighbouring rounds perched from 70 % to 83 % of the same 60 validation starts x robots, and the round its collector
-flew best (19 of 20) was the 70 % one (docs/experiments/robust.md). The selection here keeps every closed-loop
+flew best (19 of 20) was a 72 % one (docs/experiments/robust.md). The selection here keeps every closed-loop
 round's collecting network (``rounds/network_<solves>.pt`` with its collector's record), and at the end of training
 the ``rounds`` networks whose collectors succeeded most often fly the same ``episodes`` selection episodes; the best
 ``finalists`` fly ``final_episodes`` more, and the network with the most successes over all its episodes is

@@ -426,6 +426,8 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
         )
     if closed_loop.keep_best and config.selection.rounds:
         deploy_selected(out, select_kept_round(config, task, out))
+        if config.budget in config.runtime.snapshots:  # the method at the full budget is the selected network
+            shutil.copyfile(out / "network_best.pt", out / f"network_{config.budget}.pt")
     if closed_loop.keep_best and (out / "network_best.pt").is_file():
         network.save(out / "network_last.pt")
         network = ValueNetwork.load(out / "network_best.pt")

@@ -135,3 +135,36 @@ def test_a_run_with_selection_rounds_keeps_every_round_and_deploys_the_selected_
     np.testing.assert_array_equal(
         ValueNetwork.load(run / "network.pt").casadi_parameters(), ValueNetwork.load(chosen).casadi_parameters()
     )
+
+
+def test_a_selection_other_than_the_best_collector_becomes_network_pt_and_the_full_budget_snapshot(
+    tmp_path, monkeypatch
+):
+    """Whatever round the selection returns is deployed: network.pt and the full budget's snapshot are that round's
+    network, not the best collector's that the loop kept meanwhile."""
+    import seagul_learn.training as training
+    from seagul_learn.round_selection import RoundSelection
+
+    def other(config, task, out):
+        best = ValueNetwork.load(out / "network_best.pt").casadi_parameters()
+        for path, rec in kept_rounds(out):
+            if not np.array_equal(ValueNetwork.load(path).casadi_parameters(), best):
+                keys = ("round", "solves_before_round", "episode_successes", "episodes")
+                return RoundSelection(**{k: rec[k] for k in keys}, selection_success=0.0, selection_episodes=1)
+        pytest.fail("every kept round is the best collector's network")
+
+    monkeypatch.setattr(training, "select_kept_round", other)
+    run = tmp_path / "run"
+    config = _cl_config(
+        tmp_path,
+        sampler__keep_best=True,
+        sampler__warmup_rounds=0,
+        sampler__episodes=1,
+        selection__rounds=2,
+        runtime__snapshots=(18,),
+    )
+    train(config, run, batch_solver=ToySolver(TASK), solver_name="toy")
+    best = json.loads((run / "network_best.json").read_text())
+    chosen = ValueNetwork.load(run / "rounds" / f"network_{best['solves_before_round']}.pt").casadi_parameters()
+    for name in ("network.pt", "network_18.pt", "network_best.pt"):
+        np.testing.assert_array_equal(ValueNetwork.load(run / name).casadi_parameters(), chosen)
