@@ -14,7 +14,7 @@ import torch
 from seagul_control._io import atomic_write_bytes, atomic_write_text
 from seagul_learn.config import TrainConfig
 from seagul_learn.fitting import Trainer
-from seagul_learn.round_selection import save_round
+from seagul_learn.round_selection import collector_rate, save_round
 from seagul_learn.samplers import Sampler
 from seagul_learn.value_network import ValueModel
 
@@ -31,7 +31,7 @@ def keep_best(out: Path, config: TrainConfig, log: list[dict[str, Any]], collect
     def rate(entry: dict[str, Any]) -> float | None:
         if entry.get("collector") != deployed or not entry.get("episodes"):
             return None
-        return float(entry["episode_successes"]) / float(entry["episodes"])
+        return collector_rate(entry)
 
     if not log or (now := rate(log[-1])) is None:
         return
@@ -40,6 +40,7 @@ def keep_best(out: Path, config: TrainConfig, log: list[dict[str, Any]], collect
         "round": int(entry["round"]),
         "episode_successes": int(entry["episode_successes"]),
         "episodes": int(entry["episodes"]),
+        **{k: int(entry[k]) for k in ("replayed", "replayed_successes") if k in entry},
         "solves_before_round": int(solves),
         "note": "the network the round's collector flew (trained on the solves before the round)",
     }

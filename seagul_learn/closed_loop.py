@@ -37,15 +37,18 @@ controller looks:
 runs on its own robot drawn uniformly from Theta (a stream of its own), the collecting MPC is the deployed robust
 one (``LimitedLookaheadMPC(..., model_params=True, estimate_robot=True)``: it plans, and queries the value, for its
 online estimate of the robot), each query is ``(x_n, tau_n, theta_hat)`` with the robot the plan was made for, and
-its tail problem is solved for that robot. The selections measure distances in ``(x, tau, theta)``.
+its tail problem is solved for that robot. The selections measure distances in ``(x, tau, theta)``. With
+``replay_failed`` a share of each round's episodes fly robots whose episodes failed in earlier rounds (each with a
+fresh start; a replayed robot that perches leaves the pool): uniform draws rarely visit Theta's hard corners, where
+the failures are.
 
 ``uniform_fraction`` of each round's solves are plain uniform draws from X0 at the nominal time to go (the
 baseline's starts), which keep the function right where the episodes begin.
 
 **Determinism and resume.** Episode starts come from ``np.random.default_rng([seed, stream, round])``; the MPC and
 the env are deterministic, so a round re-run after an interruption asks for the same tail problems, which the
-solve runner then reuses from disk bit for bit. The sampler's state (the round counter and the per-round log) is
-part of the training checkpoint.
+solve runner then reuses from disk bit for bit. The sampler's state (the round counter, the per-round log and the
+replay pool) is part of the training checkpoint.
 """
 
 from __future__ import annotations
@@ -77,6 +80,7 @@ _STREAM_SELECTION = 12
 _STREAM_EPISODE_ROBOTS = 14
 _STREAM_VISITED = 15
 _STREAM_EPISODE_SLICE = 20
+_STREAM_REPLAY = 25
 
 
 @dataclass
@@ -105,6 +109,8 @@ class Queries:
     """``(v,)`` True where the visited state belongs to an episode that did not succeed."""
     visited_theta: np.ndarray | None = None
     """``(v, k)`` the simulated robot of each visited state's episode (over robots), else None."""
+    episode_success: np.ndarray | None = None
+    """``(episodes,)`` True where the episode reached the task's success set."""
 
 
 def snap_tau(task: Task, tau: float) -> float:
@@ -142,6 +148,7 @@ def collect_queries(
     vtau: list[float] = []
     vfail: list[bool] = []
     vtheta: list[np.ndarray] = []
+    per_episode: list[bool] = []
     for i, x0 in enumerate(starts):
         robot = None if robots is None else robots[i]
         episode, infos = run_policy_episode(task, policy, x0, env_id=env_id, robot=robot, record=record_visited)
@@ -154,6 +161,7 @@ def collect_queries(
                 if robot is not None:
                     vtheta.append(np.asarray(robot, dtype=np.float64))
         successes += int(episode.success)
+        per_episode.append(bool(episode.success))
         fallbacks += episode.fallbacks
         steps += episode.steps
         for info in infos:
@@ -169,6 +177,7 @@ def collect_queries(
     if robots is not None:
         theta = np.array(thetas, dtype=np.float64).reshape(x.shape[0], np.asarray(robots).shape[1])
     out = Queries(x, np.array(taus, dtype=np.float64), theta, starts.shape[0], successes, fallbacks, steps)
+    out.episode_success = np.array(per_episode, dtype=bool)
     if record_visited:
         out.visited_x = np.array(vx, dtype=np.float64).reshape(-1, task.nx)
         out.visited_tau = np.array(vtau, dtype=np.float64)
@@ -225,6 +234,10 @@ class ClosedLoopSampler:
         self._known_theta = np.zeros((0, pool.thetas.shape[1] if pool.thetas is not None else 0))
         if self.robots and task.parameters is None:
             raise ValueError(f"{task.name}: a start pool over robots needs a task that declares Task.parameters")
+        if self.options.replay_failed and not self.robots:
+            raise ValueError("closed-loop replay_failed replays robots: it needs training over robots (model_params)")
+        self.replay_pool: list[list[float]] = []
+        """Robots whose collector episodes failed and have not perched since (``replay_failed``), oldest first."""
         if task.fixed_step:
             self._check_tails()
 
@@ -240,13 +253,19 @@ class ClosedLoopSampler:
     # --------------------------------------------------------------------------- state (resume)
     def state_dict(self) -> dict[str, Any]:
         """Resumable state (saved in the training checkpoint)."""
-        return {"round": self.round, "loop_rounds": self.loop_rounds, "log": list(self.log)}
+        return {
+            "round": self.round,
+            "loop_rounds": self.loop_rounds,
+            "log": list(self.log),
+            "replay_pool": [list(r) for r in self.replay_pool],
+        }
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         """Restore :meth:`state_dict`."""
         self.round = int(state["round"])
         self.loop_rounds = int(state.get("loop_rounds", 0))
         self.log = list(state["log"])
+        self.replay_pool = [[float(v) for v in r] for r in state.get("replay_pool", [])]
 
     def observe(self, buffer: TrainingArrays) -> None:
         """The training buffer after a round (the ``"farthest"``/``"lowest"`` selections measure against it)."""
@@ -297,12 +316,36 @@ class ClosedLoopSampler:
         return np.vstack([starts, sample_grid_slice(self.task, on_slice, rng_slice)])
 
     def episode_robots(self) -> np.ndarray | None:
-        """This round's simulated robots, one per episode (uniform over Theta; their own stream), or None."""
+        """This round's simulated robots, one per episode, or None: the first :meth:`replayed` ones drawn from the
+        replay pool without replacement (stream ``[seed, 25, round]``), the others uniform over Theta (their own
+        stream)."""
         if not self.robots:
             return None
         assert self.task.parameters is not None
         rng = np.random.default_rng([self.seed, _STREAM_EPISODE_ROBOTS, self.round])
-        return self.task.parameters.sample(rng, self.options.episodes).reshape(self.options.episodes, -1)
+        robots = self.task.parameters.sample(rng, self.options.episodes).reshape(self.options.episodes, -1)
+        n = self.replayed()
+        if n:
+            picks = np.random.default_rng([self.seed, _STREAM_REPLAY, self.round]).permutation(len(self.replay_pool))
+            robots[:n] = np.array([self.replay_pool[i] for i in picks[:n]], dtype=np.float64)
+        return robots
+
+    def replayed(self) -> int:
+        """How many of this round's episodes fly robots from the replay pool (``replay_failed``)."""
+        return min(round(self.options.replay_failed * self.options.episodes), len(self.replay_pool))
+
+    def _update_replay(self, robots: np.ndarray | None, success: np.ndarray | None, replayed: int) -> None:
+        """After a round: replayed robots that perched leave the pool, every other failed robot joins (or stays)."""
+        if not self.options.replay_failed or robots is None or success is None:
+            return
+        perched = {tuple(r) for r in robots[:replayed][success[:replayed]]}
+        pool = [r for r in self.replay_pool if tuple(r) not in perched]
+        known = {tuple(r) for r in pool}
+        for robot, ok in zip(robots, success, strict=True):
+            if not ok and tuple(robot) not in known:
+                pool.append([float(v) for v in robot])
+                known.add(tuple(robot))
+        self.replay_pool = pool
 
     # ------------------------------------------------------------------------------- selection
     def _eligible(self, queries: Queries) -> np.ndarray:
@@ -403,8 +446,9 @@ class ClosedLoopSampler:
             mpc = self.collector(network)
             entry["collector"] = mpc.trust_region
             n_visited = round(self.options.visited_fraction * n_tail)
+            robots, replayed = self.episode_robots(), self.replayed()
             queries = collect_queries(
-                self.task, mpc, self.episode_starts(), robots=self.episode_robots(), record_visited=n_visited > 0
+                self.task, mpc, self.episode_starts(), robots=robots, record_visited=n_visited > 0
             )
             visited = self.select_visited(queries, n_visited)
             chosen = self.select(queries, network, n_tail - int(visited.size))
@@ -417,6 +461,11 @@ class ClosedLoopSampler:
                 tails=int(chosen.size),
                 visited_tails=int(visited.size),
             )
+            if self.options.replay_failed:
+                assert queries.episode_success is not None
+                entry.update(replayed=replayed, replayed_successes=int(queries.episode_success[:replayed].sum()))
+                self._update_replay(robots, queries.episode_success, replayed)
+                entry["replay_pool"] = len(self.replay_pool)
             n_uniform += n_tail - int(chosen.size) - int(visited.size)
             self.loop_rounds += 1
             if chosen.size:

@@ -50,6 +50,17 @@ def save_round(out: Path, network: Any, record: dict[str, Any]) -> Path:
     return path
 
 
+def collector_rate(record: dict[str, Any]) -> float | None:
+    """A round's collector success rate over the episodes on new robots: a log entry's or kept round's
+    ``episode_successes / episodes`` less its ``replayed`` episodes and their ``replayed_successes``
+    (``ClosedLoopOptions.replay_failed``: robots that failed before, which would rank rounds by how many hard robots
+    they drew). None when the round flew no new episode."""
+    episodes = int(record["episodes"]) - int(record.get("replayed", 0))
+    if episodes <= 0:
+        return None
+    return float(int(record["episode_successes"]) - int(record.get("replayed_successes", 0))) / float(episodes)
+
+
 def kept_rounds(out: Path) -> list[tuple[Path, dict[str, Any]]]:
     """The rounds ``save_round`` kept, in training order: ``(network file, collector record)``."""
     folder = Path(out) / ROUNDS_DIR
@@ -130,7 +141,7 @@ def select_round(
         raise ValueError(f"select_round: {Path(out) / ROUNDS_DIR} holds no kept round (train with selection.rounds)")
 
     def rate(rec: dict[str, Any]) -> float:
-        return float(rec["episode_successes"]) / float(rec["episodes"])
+        return collector_rate(rec) or 0.0
 
     order = sorted(range(len(kept)), key=lambda i: (rate(kept[i][1]), i), reverse=True)[: int(rounds)]
     mpc: Any = None

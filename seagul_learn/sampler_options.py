@@ -147,6 +147,13 @@ class ClosedLoopOptions(SamplerOptions):
     instead of the planned terminal states (DAgger's labels: the optimal continuation from where the learned
     controller actually went, whose first knots are the terminal states the planner should have chosen). States of
     episodes that failed come first; fixed-step tasks only."""
+    replay_failed: float = 0.0
+    """Over robots: share of each round's episodes flown on robots whose collector episodes failed in earlier rounds
+    (each with a fresh start), the rest on new robots uniform over Theta. A replayed robot that perches leaves the
+    replay pool; one that fails again stays. Uniform draws put few episodes in Theta's hard corners (the glider: heavy
+    with little wing), where a round's failures are; replaying them puts the round's queries and tails there
+    (prioritised level replay's idea, over robots). The collector's success rate that ranks rounds
+    (``keep_best``, ``selection.rounds``) counts the new robots' episodes only."""
     slice_fraction: float = 0.0
     """Share of each round's episode starts drawn on the evaluation grid's slice of X0
     (:func:`seagul_control.evaluation.sample_grid_slice`: the acrobot at rest), random draws, never the grid's points.
@@ -192,3 +199,5 @@ class ClosedLoopOptions(SamplerOptions):
             raise ValueError(f"closed-loop visited_fraction must be in [0, 1], got {self.visited_fraction}")
         if not 0.0 <= self.slice_fraction <= 1.0:
             raise ValueError(f"closed-loop slice_fraction must be in [0, 1], got {self.slice_fraction}")
+        if not 0.0 <= self.replay_failed < 1.0:
+            raise ValueError(f"closed-loop replay_failed must be in [0, 1), got {self.replay_failed}")

@@ -521,3 +521,104 @@ def test_the_collector_deploys_the_tasks_guard_unless_told_otherwise(tmp_path):
         config = _cl_config(tmp_path, task=task, sampler__keep_best=True, sampler__trust_region=None)
         _keep_best(out, config, log, net, 100)
         assert (out / "network_best.pt").is_file() is saved
+
+
+def _glider_sampler(replay: float, seed: int = 3):
+    from seagul_learn.closed_loop import ClosedLoopSampler
+    from seagul_learn.samplers import StartPool
+
+    task = make_task("glider")
+    pool = StartPool.uniform(task, 20, np.random.default_rng(0), model_params=True)
+    return task, ClosedLoopSampler(task, pool, ClosedLoopOptions(episodes=8, replay_failed=replay), seed=seed)
+
+
+def test_replay_failed_flies_earlier_rounds_failed_robots_again(monkeypatch, tmp_path):
+    """``sampler.replay_failed``: with an empty pool every robot is the uniform draw; after a round, its failed robots
+    join the pool, and the next round's first ``round(share x episodes)`` episodes fly pool robots (the rest are the
+    uniform draws made without the option); a replayed robot that perches leaves the pool, one that fails again stays
+    once; the pool survives a resume; the round's log counts the replayed episodes, and the collector rate that ranks
+    rounds leaves them out."""
+    import seagul_learn.closed_loop as cl
+    from seagul_learn.checkpoint import keep_best
+    from seagul_learn.round_selection import collector_rate
+
+    with pytest.raises(ValueError, match="replay_failed"):
+        ClosedLoopOptions(replay_failed=1.0)
+    acrobot = make_task("acrobot")
+    no_robots = cl.StartPool(np.zeros((1, acrobot.nx)), np.zeros(1), np.zeros(1, dtype=int))
+    with pytest.raises(ValueError, match="over robots"):
+        cl.ClosedLoopSampler(acrobot, no_robots, ClosedLoopOptions(replay_failed=0.25))
+
+    task, sampler = _glider_sampler(0.25)
+    _, plain = _glider_sampler(0.0)
+    assert sampler.replayed() == 0
+    np.testing.assert_array_equal(sampler.episode_robots(), plain.episode_robots())
+
+    # one round through sample(): the episodes and the solves are faked, the bookkeeping is the sampler's
+    flown: list[np.ndarray] = []
+    outcome = {0: np.array([True, False, True, True, False, True, True, True])}
+
+    def fake_collect(task_, mpc, starts, robots=None, record_visited=False):
+        flown.append(robots.copy())
+        ok = outcome[len(flown) - 1]
+        q = cl.Queries(np.zeros((0, task.nx)), np.zeros(0), np.zeros((0, 4)), len(starts), int(ok.sum()), 0, 8)
+        q.episode_success = ok
+        return q
+
+    class Runner:
+        def solve(self, starts, taus, name, thetas=None):
+            return []
+
+    monkeypatch.setattr(cl, "collect_queries", fake_collect)
+    collector = type("Collector", (), {"trust_region": "none"})
+    monkeypatch.setattr(cl.ClosedLoopSampler, "collector", lambda self, network: collector)
+    monkeypatch.setattr(cl.ClosedLoopSampler, "_split", lambda self, n: (0, n))
+    sampler.sample(4, None, Runner())
+    first = flown[0]
+    assert sampler.log[-1]["replayed"] == 0 and sampler.log[-1]["replay_pool"] == 2
+    assert sorted(map(tuple, sampler.replay_pool)) == sorted([tuple(first[1]), tuple(first[4])])
+
+    # round 1: two of eight episodes replay the two failed robots (in a seeded order), the rest are uniform draws
+    plain.round = 1
+    assert sampler.replayed() == 2
+    robots = sampler.episode_robots()
+    assert {tuple(r) for r in robots[:2]} == {tuple(first[1]), tuple(first[4])}
+    np.testing.assert_array_equal(robots[2:], plain.episode_robots()[2:])
+    np.testing.assert_array_equal(robots, sampler.episode_robots())  # reproducible
+    state = json.loads(json.dumps(sampler.state_dict()))
+    _, resumed = _glider_sampler(0.25)
+    resumed.load_state_dict(state)
+    np.testing.assert_array_equal(resumed.episode_robots(), robots)
+
+    # the first replayed robot perches, the second fails again; a new robot fails too
+    outcome[1] = np.array([True, False, True, True, True, True, False, True])
+    sampler.sample(4, None, Runner())
+    entry = sampler.log[-1]
+    assert entry["replayed"] == 2 and entry["replayed_successes"] == 1 and entry["episode_successes"] == 6
+    pool = [tuple(r) for r in sampler.replay_pool]
+    assert len(pool) == len(set(pool)) == 2
+    assert tuple(robots[0]) not in pool and tuple(robots[1]) in pool and tuple(flown[1][6]) in pool
+
+    # the rate that ranks rounds: 5 of the 6 new robots' episodes, not 6 of 8
+    assert collector_rate(entry) == pytest.approx(5 / 6)
+    assert collector_rate({"episodes": 2, "episode_successes": 0, "replayed": 2, "replayed_successes": 0}) is None
+    assert collector_rate({"episodes": 4, "episode_successes": 3}) == 0.75
+
+    # keep_best prefers a round whose new robots did better, whatever its replayed ones did
+    log = [
+        {"round": 0, "collector": "none", "episodes": 8, "episode_successes": 7},
+        {
+            "round": 1,
+            "collector": "none",
+            "episodes": 8,
+            "episode_successes": 6,
+            "replayed": 4,
+            "replayed_successes": 0,
+        },
+    ]
+    out = tmp_path
+    config = TrainConfig.recipe("glider", "robust-replay", seed=0)
+    keep_best(out, config, log[:1], ValueNetwork(4, (4,), task_name="acrobot", seed=0), 100)
+    keep_best(out, config, log, ValueNetwork(4, (4,), task_name="acrobot", seed=1), 150)
+    saved = json.loads((out / "network_best.json").read_text())
+    assert saved["round"] == 1 and saved["replayed"] == 4 and saved["replayed_successes"] == 0
