@@ -85,14 +85,20 @@ class LossConfig:
     value_cap: float = 0.0
     """Labels above this value are clipped to it and their gradient labels dropped (0 = off): a tail problem from a
     far-off query can cost 1e4 and would otherwise swamp the loss; the clipped label still says "expensive"."""
+    value_compress: bool = False
+    """With ``value_cap``: labels above the cap are compressed, ``cap * (1 + ln(V / cap))``, with their gradient
+    labels scaled by ``cap / V`` (the compression's derivative), instead of clipped with their gradients dropped. The
+    labels keep their order, so a planner whose reachable terminal states all cost more than the cap still sees which
+    is least bad (the glider's heavy, little-winged robots, where most tail labels lie above the cap)."""
     grad_label_max: float = 0.0
     """Drop gradient labels whose standardised norm ``|dV/dx * in_std / out_std|`` exceeds this (0 = keep all):
     near-singular tails carry dual gradients orders of magnitude above the rest that would dominate the Sobolev term;
     their value labels stay."""
     renormalize: bool = False
-    """Re-fit the standardisation to the whole buffer (labels capped at ``value_cap``) after each round's solves,
-    rescaling the first and last layers so the network's function is unchanged (PopArt). Without it the statistics of
-    the pretraining solves stay, and closed-loop tail labels land tens of standard deviations out."""
+    """Re-fit the standardisation to the whole buffer (labels capped at ``value_cap``, as the loss sees them) after
+    each round's solves, rescaling the first and last layers so the network's function is unchanged (PopArt). Without
+    it the statistics of the pretraining solves stay, and closed-loop tail labels land tens of standard deviations
+    out."""
 
     def __post_init__(self) -> None:
         _check(_finite_nonneg(self.sobolev_weight), f"loss.sobolev_weight must be >= 0, got {self.sobolev_weight}")

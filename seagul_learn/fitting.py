@@ -49,13 +49,24 @@ def rng(seed: int, stream: int, index: int = 0) -> np.random.Generator:
 
 
 def _as_tensors(
-    arrays: TrainingArrays, value_cap: float = 0.0, grad_label_max: float = 0.0, network: ValueModel | None = None
+    arrays: TrainingArrays,
+    value_cap: float = 0.0,
+    grad_label_max: float = 0.0,
+    network: ValueModel | None = None,
+    compress: bool = False,
 ) -> dict[str, torch.Tensor]:
     value = arrays.value
-    grad_ok = np.all(np.isfinite(arrays.grad_x), axis=1)
-    if arrays.grad_theta is not None:
-        grad_ok &= np.all(np.isfinite(arrays.grad_theta), axis=1)
-    if value_cap > 0:
+    grad_x, grad_theta = arrays.grad_x, arrays.grad_theta
+    grad_ok = np.all(np.isfinite(grad_x), axis=1)
+    if grad_theta is not None:
+        grad_ok &= np.all(np.isfinite(grad_theta), axis=1)
+    if value_cap > 0 and compress:
+        # Above the cap, cap * (1 + ln(V / cap)): the order of the labels stays, their gradients scale by cap / V.
+        slope = value_cap / np.maximum(value, value_cap)
+        grad_x = grad_x * slope[:, None]
+        grad_theta = None if grad_theta is None else grad_theta * slope[:, None]
+        value = capped(value, value_cap, compress=True)
+    elif value_cap > 0:
         # A clipped label keeps "expensive" without its scale; its gradient label no longer applies.
         grad_ok &= value <= value_cap
         value = np.minimum(value, value_cap)
@@ -63,17 +74,17 @@ def _as_tensors(
         if network is None:
             raise ValueError("grad_label_max needs the network whose standardisation measures the gradient labels")
         scale = _members(network)[0].in_std.numpy()[: arrays.x.shape[1]] / float(_members(network)[0].out_std)
-        grad_ok &= np.linalg.norm(np.nan_to_num(arrays.grad_x) * scale, axis=1) <= grad_label_max
+        grad_ok &= np.linalg.norm(np.nan_to_num(grad_x) * scale, axis=1) <= grad_label_max
     out = {
         "x": torch.tensor(arrays.x, dtype=torch.float64),
         "tau": torch.tensor(arrays.tau, dtype=torch.float64),
         "value": torch.tensor(value, dtype=torch.float64),
-        "grad_x": torch.tensor(np.nan_to_num(arrays.grad_x), dtype=torch.float64),
+        "grad_x": torch.tensor(np.nan_to_num(grad_x), dtype=torch.float64),
         "grad_ok": torch.tensor(grad_ok),
     }
-    if arrays.theta is not None and arrays.grad_theta is not None:
+    if arrays.theta is not None and grad_theta is not None:
         out["theta"] = torch.tensor(arrays.theta, dtype=torch.float64)
-        out["grad_theta"] = torch.tensor(np.nan_to_num(arrays.grad_theta), dtype=torch.float64)
+        out["grad_theta"] = torch.tensor(np.nan_to_num(grad_theta), dtype=torch.float64)
     return out
 
 
@@ -162,7 +173,7 @@ class Trainer:
         if len(buffer) == 0 or steps == 0:
             return
         labels = self.config.loss
-        data = _as_tensors(buffer, labels.value_cap, labels.grad_label_max, self.network)
+        data = _as_tensors(buffer, labels.value_cap, labels.grad_label_max, self.network, labels.value_compress)
         fraction = self.config.schedule.newest_fraction
         members = _members(self.network)
         if cosine:
@@ -234,5 +245,12 @@ def make_network(config: TrainConfig, task: Task) -> ValueModel:
     )
 
 
-def capped(value: np.ndarray, value_cap: float) -> np.ndarray:
-    return np.minimum(value, value_cap) if value_cap > 0 else value
+def capped(value: np.ndarray, value_cap: float, compress: bool = False) -> np.ndarray:
+    """The value labels the loss sees: clipped at ``value_cap`` (0 = off), or with ``compress``
+    (``loss.value_compress``) ``cap * (1 + ln(V / cap))`` above it."""
+    value = np.asarray(value, dtype=np.float64)
+    if value_cap <= 0:
+        return value
+    if not compress:
+        return np.minimum(value, value_cap)
+    return np.where(value > value_cap, value_cap * (1.0 + np.log(np.maximum(value, value_cap) / value_cap)), value)

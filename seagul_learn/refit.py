@@ -40,7 +40,9 @@ def refit(
     same network.
     """
     network = make_network(config, task)
-    network.set_normalization(buffer.x, buffer.tau, capped(buffer.value, config.loss.value_cap), buffer.theta)
+    network.set_normalization(
+        buffer.x, buffer.tau, capped(buffer.value, config.loss.value_cap, config.loss.value_compress), buffer.theta
+    )
     trainer.network = network
     trainer.optimizer = torch.optim.Adam(network.parameters(), lr=config.schedule.lr)
     trainer.train(
@@ -81,6 +83,8 @@ def candidates_key(config: TrainConfig, buffer: TrainingArrays) -> dict[str, Any
         "knots": len(buffer),
         "refit": {k: v for k, v in config.flat_dict().items() if k in _REFIT_FIELDS},
     }
+    if config.loss.value_compress:  # newer than the flat names: in the key only when on, so older keys still match
+        key["refit"]["value_compress"] = True
     return json.loads(json.dumps(key))
 
 

@@ -389,7 +389,12 @@ def _train(config: TrainConfig, out: Path, task: Task, batch_solver: BatchSolver
         solves, failures = len(budget_records), count_failures(budget_records)
         buffer_solves = config.schedule.pretrain_solves + solves
         if config.loss.renormalize:
-            network.renormalize(buffer.x, buffer.tau, capped(buffer.value, config.loss.value_cap), buffer.theta)
+            network.renormalize(
+                buffer.x,
+                buffer.tau,
+                capped(buffer.value, config.loss.value_cap, config.loss.value_compress),
+                buffer.theta,
+            )
         trainer.train(
             buffer,
             newest,

@@ -14,6 +14,7 @@ from seagul_envs import make_task
 from seagul_learn.dataset import Dataset
 from seagul_learn.training import (
     AdversarialOptions,
+    LossConfig,
     NetworkConfig,
     RefitConfig,
     RuntimeConfig,
@@ -358,6 +359,48 @@ def test_grad_label_max_drops_only_extreme_gradient_labels():
     assert _as_tensors(arrays, 0.0, 0.0, net)["grad_ok"].tolist() == [True, True, False]
     with pytest.raises(ValueError, match="grad_label_max needs the network"):
         _as_tensors(arrays, 0.0, 10.0, None)
+
+
+def test_value_compress_keeps_the_order_and_the_gradients_of_labels_above_the_cap():
+    """``loss.value_compress``: below the cap labels are untouched; above it ``cap (1 + ln(V / cap))``, continuous
+    with slope 1 at the cap and increasing, with the gradient labels scaled by ``cap / V`` (the compression's
+    derivative: checked by finite differences) and kept, where clipping drops them; the refit key names it only when
+    on."""
+    from seagul_learn.dataset import TrainingArrays
+    from seagul_learn.fitting import capped
+    from seagul_learn.refit import candidates_key
+    from seagul_learn.training import _as_tensors
+
+    cap = 100.0
+    value = np.array([10.0, 100.0, 150.0, 1e4])
+    squashed = capped(value, cap, compress=True)
+    assert squashed[:2].tolist() == [10.0, 100.0] and np.all(np.diff(squashed) > 0)
+    assert squashed[3] == pytest.approx(cap * (1 + np.log(100.0)))
+    np.testing.assert_array_equal(capped(value, cap), [10.0, 100.0, 100.0, 100.0])
+    np.testing.assert_array_equal(capped(value, 0.0, compress=True), value)
+    for v in (50.0, 100.0 + 1e-3, 150.0, 1e4):  # d/dV of the compression = cap / max(V, cap)
+        fd = (capped(np.array([v + 1e-4]), cap, True) - capped(np.array([v - 1e-4]), cap, True))[0] / 2e-4
+        assert fd == pytest.approx(cap / max(v, cap), rel=1e-5)
+
+    arrays = TrainingArrays(
+        x=np.zeros((4, 2)),
+        tau=np.ones(4),
+        value=value,
+        grad_x=np.array([[1.0, 2.0]] * 4),
+        solve_index=np.zeros(4, dtype=np.int64),
+        knot=np.zeros(4, dtype=np.int64),
+    )
+    clipped = _as_tensors(arrays, cap)
+    assert clipped["grad_ok"].tolist() == [True, True, False, False]
+    compressed = _as_tensors(arrays, cap, compress=True)
+    assert compressed["grad_ok"].tolist() == [True] * 4
+    np.testing.assert_allclose(compressed["value"].numpy(), squashed)
+    np.testing.assert_allclose(compressed["grad_x"].numpy()[:, 0], [1.0, 1.0, cap / 150.0, cap / 1e4])
+
+    config = TrainConfig(task="acrobot", loss=LossConfig(value_cap=cap))
+    on = replace(config, loss=LossConfig(value_cap=cap, value_compress=True))
+    assert "value_compress" not in candidates_key(config, arrays)["refit"]
+    assert candidates_key(on, arrays)["refit"]["value_compress"] is True
 
 
 def test_refit_replaces_the_network_and_resumes_to_the_same_weights(tmp_path):
