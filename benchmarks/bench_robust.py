@@ -8,7 +8,7 @@ Usage::
 
 Per task, ``--seeds`` networks are trained with the task's recipe ``RobustBenchConfig.recipe``
 (``TrainConfig.recipe(task, recipe, seed=s)``, by default :data:`RECIPES`: the acrobot's ``shipped``, the nominal
-robot's recipe, and the glider's ``robust-select``, which learns ``V(x, tau, theta)`` over robots) and each is
+robot's recipe, and the glider's ``robust-compress``, which learns ``V(x, tau, theta)`` over robots) and each is
 deployed as the shipped robust MPC::
 
     LimitedLookaheadMPC(task, ValueNetwork.load(network), horizon=H, model_params=True, estimate_robot=True)
@@ -86,13 +86,15 @@ from seagul_learn.experiment.runs import train_one  # noqa: E402
 from seagul_learn.shipped import shipped_network  # noqa: E402
 from seagul_learn.training import TrainConfig  # noqa: E402
 
-RECIPES = {"acrobot": "shipped", "glider": "robust-select"}
+RECIPES = {"acrobot": "shipped", "glider": "robust-compress"}
 """Each task's recipe of the robust MPC's networks (``--recipe`` replaces it): the acrobot's nominal shipped recipe
 measured best over robots (its ``robust`` recipe over Theta did worse), the glider's nominal network does not carry
-over to other robots and its ``robust-select`` recipe learns over Theta, the value fed the products the dynamics
+over to other robots and its ``robust-compress`` recipe learns over Theta, the value fed the products the dynamics
 depend on (``robust-invariants``; fed the four parameters, the ``robust`` recipe perches as often with the estimate
 and less often when the MPC knows the robot), the deployed round chosen on selection episodes (``selection.rounds``;
-the round whose collector flew best perched less often on validation starts x robots; docs/experiments/robust.md)."""
+the round whose collector flew best perched less often on validation starts x robots), and the labels above the cap
+compressed instead of clipped (``robust-compress``: the heavy robots' tails lie mostly above it; docs/experiments/
+robust.md)."""
 DR_RL: dict[str, dict[str, int]] = {"glider": {"PPO": 2_000_000}}
 """Domain-randomised RL per task (``SB3Config(domain_randomization=True)``, the env's tuned entry): algorithm ->
 environment steps. The glider's PPO perches from every start of the model's robot at its nominal budget, 500 k steps

@@ -232,6 +232,11 @@ def test_the_robust_recipes_are_the_default_ones_over_robots_within_3000_solves(
         "selection.final_episodes": 100,
     }
     assert TrainConfig.recipe("glider", "robust-select") == invariants.replaced(**select)
+    # ... and with the labels above the cap compressed; the replay recipe is robust-select plus the replay
+    compress = TrainConfig.recipe("glider", "robust-compress")
+    assert compress == invariants.replaced(**select, **{"loss.value_compress": True})
+    replay = TrainConfig.recipe("glider", "robust-replay")
+    assert replay == invariants.replaced(**select, **{"sampler.replay_failed": 0.25})
 
 
 def test_recipes_overrides_and_other_samplers():
