@@ -36,7 +36,7 @@ def keep_best(out: Path, config: TrainConfig, log: list[dict[str, Any]], collect
     if not log or (now := rate(log[-1])) is None:
         return
     entry = log[-1]
-    info = {
+    info: dict[str, Any] = {
         "round": int(entry["round"]),
         "episode_successes": int(entry["episode_successes"]),
         "episodes": int(entry["episodes"]),

@@ -78,13 +78,10 @@ _REFIT_FIELDS = frozenset(
 
 def candidates_key(config: TrainConfig, buffer: TrainingArrays) -> dict[str, Any]:
     """What the candidates' refit of ``refit.candidates`` depends on (stored beside them; JSON-ready)."""
-    key = {
-        "candidates": config.refit.candidates,
-        "knots": len(buffer),
-        "refit": {k: v for k, v in config.flat_dict().items() if k in _REFIT_FIELDS},
-    }
+    refit = {k: v for k, v in config.flat_dict().items() if k in _REFIT_FIELDS}
     if config.loss.value_compress:  # newer than the flat names: in the key only when on, so older keys still match
-        key["refit"]["value_compress"] = True
+        refit["value_compress"] = True
+    key = {"candidates": config.refit.candidates, "knots": len(buffer), "refit": refit}
     return json.loads(json.dumps(key))
 
 
