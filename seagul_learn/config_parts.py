@@ -85,7 +85,7 @@ class LossConfig:
     value_cap: float = 0.0
     """Labels above this value are clipped to it and their gradient labels dropped (0 = off): a tail problem from a
     far-off query can cost 1e4 and would otherwise swamp the loss; the clipped label still says "expensive"."""
-    value_compress: bool = False
+    value_compress: bool = field(default=False, metadata={"omit_default": True})
     """With ``value_cap``: labels above the cap are compressed, ``cap * (1 + ln(V / cap))``, with their gradient
     labels scaled by ``cap / V`` (the compression's derivative), instead of clipped with their gradients dropped. The
     labels keep their order, so a planner whose reachable terminal states all cost more than the cap still sees which

@@ -44,10 +44,14 @@ class SamplerOptions:
         return hash((self.name, dataclasses.astuple(self)))  # type: ignore[call-overload]
 
     def to_dict(self) -> dict[str, Any]:
-        """The options as JSON-ready data with the sampler's name under ``"name"`` (``TrainConfig.to_dict``)."""
+        """The options as JSON-ready data with the sampler's name under ``"name"`` (``TrainConfig.to_dict``). A field
+        marked ``metadata={"omit_default": True}`` is written only when it differs from its default, so the recorded
+        settings of runs made before it existed stay as they were."""
         out: dict[str, Any] = {"name": self.name}
         for f in dataclasses.fields(self):  # type: ignore[arg-type]
             value = getattr(self, f.name)
+            if f.metadata.get("omit_default") and value == f.default:
+                continue
             out[f.name] = list(value) if isinstance(value, tuple) else value
         return out
 
@@ -147,7 +151,7 @@ class ClosedLoopOptions(SamplerOptions):
     instead of the planned terminal states (DAgger's labels: the optimal continuation from where the learned
     controller actually went, whose first knots are the terminal states the planner should have chosen). States of
     episodes that failed come first; fixed-step tasks only."""
-    replay_failed: float = 0.0
+    replay_failed: float = field(default=0.0, metadata={"omit_default": True})
     """Over robots: share of each round's episodes flown on robots whose collector episodes failed in earlier rounds
     (each with a fresh start), the rest on new robots uniform over Theta. A replayed robot that perches leaves the
     replay pool; one that fails again stays. Uniform draws put few episodes in Theta's hard corners (the glider: heavy

@@ -544,6 +544,9 @@ def test_replay_failed_flies_earlier_rounds_failed_robots_again(monkeypatch, tmp
 
     with pytest.raises(ValueError, match="replay_failed"):
         ClosedLoopOptions(replay_failed=1.0)
+    # recorded only when on: the settings of runs made without it stay as they were
+    assert "replay_failed" not in ClosedLoopOptions().to_dict()
+    assert ClosedLoopOptions(replay_failed=0.25).to_dict()["replay_failed"] == 0.25
     acrobot = make_task("acrobot")
     no_robots = cl.StartPool(np.zeros((1, acrobot.nx)), np.zeros(1), np.zeros(1, dtype=int))
     with pytest.raises(ValueError, match="over robots"):

@@ -399,6 +399,8 @@ def test_value_compress_keeps_the_order_and_the_gradients_of_labels_above_the_ca
 
     config = TrainConfig(task="acrobot", loss=LossConfig(value_cap=cap))
     on = replace(config, loss=LossConfig(value_cap=cap, value_compress=True))
+    assert "value_compress" not in config.to_dict()["loss"] and on.to_dict()["loss"]["value_compress"] is True
+    assert TrainConfig.from_dict(on.to_dict()) == on
     assert "value_compress" not in candidates_key(config, arrays)["refit"]
     assert candidates_key(on, arrays)["refit"]["value_compress"] is True
 
