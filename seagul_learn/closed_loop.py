@@ -334,10 +334,8 @@ class ClosedLoopSampler:
         """How many of this round's episodes fly robots from the replay pool (``replay_failed``)."""
         return min(round(self.options.replay_failed * self.options.episodes), len(self.replay_pool))
 
-    def _update_replay(self, robots: np.ndarray | None, success: np.ndarray | None, replayed: int) -> None:
+    def _update_replay(self, robots: np.ndarray, success: np.ndarray, replayed: int) -> None:
         """After a round: replayed robots that perched leave the pool, every other failed robot joins (or stays)."""
-        if not self.options.replay_failed or robots is None or success is None:
-            return
         perched = {tuple(r) for r in robots[:replayed][success[:replayed]]}
         pool = [r for r in self.replay_pool if tuple(r) not in perched]
         known = {tuple(r) for r in pool}
@@ -462,7 +460,7 @@ class ClosedLoopSampler:
                 visited_tails=int(visited.size),
             )
             if self.options.replay_failed:
-                assert queries.episode_success is not None
+                assert robots is not None and queries.episode_success is not None
                 entry.update(replayed=replayed, replayed_successes=int(queries.episode_success[:replayed].sum()))
                 self._update_replay(robots, queries.episode_success, replayed)
                 entry["replay_pool"] = len(self.replay_pool)

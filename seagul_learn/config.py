@@ -54,6 +54,7 @@ from seagul_learn.config_parts import (
     ScheduleConfig,
     SelectionConfig,
     _check,
+    omitted,
 )
 from seagul_learn.sampler_options import AdversarialOptions, ClosedLoopOptions, SamplerOptions, UniformOptions
 
@@ -100,13 +101,6 @@ SamplerChoice = Union[  # noqa: UP007 (tyro reads the Annotated members of a typ
 
 def _warn(message: str, stacklevel: int) -> None:
     warnings.warn(message, DeprecationWarning, stacklevel=stacklevel + 1)
-
-
-def _omitted(part: Any, name: str) -> bool:
-    """A section field written only when it differs from its default (``metadata={"omit_default": True}``): a field
-    added later leaves the recorded settings of runs that did not use it as they were."""
-    f = next(f for f in dataclasses.fields(part) if f.name == name)
-    return bool(f.metadata.get("omit_default")) and getattr(part, name) == f.default
 
 
 def _sampler_options(value: Any) -> SamplerOptions:
@@ -343,7 +337,7 @@ class TrainConfig:
                 value = {
                     k: list(v) if isinstance(v, tuple) else v
                     for k, v in dataclasses.asdict(value).items()
-                    if not _omitted(value, k)
+                    if not omitted(value, k)
                 }
             elif isinstance(value, dict):
                 value = dict(value)

@@ -4,8 +4,16 @@ is made, with errors that name the field by its place (``loss.sobolev_weight mus
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from typing import ClassVar, Literal
+from dataclasses import dataclass, field, fields
+from typing import Any, ClassVar, Literal
+
+
+def omitted(part: Any, name: str) -> bool:
+    """Whether field ``name`` of a settings dataclass is left out of the written settings: it is marked
+    ``metadata={"omit_default": True}`` and at its default, so a field added later leaves the recorded settings of runs
+    that did not use it as they were (``TrainConfig.to_dict``, ``SamplerOptions.to_dict``)."""
+    f = next(f for f in fields(part) if f.name == name)
+    return bool(f.metadata.get("omit_default")) and getattr(part, name) == f.default
 
 
 def _check(ok: bool, message: str) -> None:

@@ -60,16 +60,14 @@ def _as_tensors(
     grad_ok = np.all(np.isfinite(grad_x), axis=1)
     if grad_theta is not None:
         grad_ok &= np.all(np.isfinite(grad_theta), axis=1)
-    if value_cap > 0 and compress:
-        # Above the cap, cap * (1 + ln(V / cap)): the order of the labels stays, their gradients scale by cap / V.
-        slope = value_cap / np.maximum(value, value_cap)
-        grad_x = grad_x * slope[:, None]
-        grad_theta = None if grad_theta is None else grad_theta * slope[:, None]
-        value = capped(value, value_cap, compress=True)
-    elif value_cap > 0:
-        # A clipped label keeps "expensive" without its scale; its gradient label no longer applies.
-        grad_ok &= value <= value_cap
-        value = np.minimum(value, value_cap)
+    if value_cap > 0:
+        if compress:  # the order of the labels stays; their gradients scale by the map's derivative, cap / V
+            slope = value_cap / np.maximum(value, value_cap)
+            grad_x = grad_x * slope[:, None]
+            grad_theta = None if grad_theta is None else grad_theta * slope[:, None]
+        else:  # a clipped label keeps "expensive" without its scale; its gradient label no longer applies
+            grad_ok &= value <= value_cap
+        value = capped(value, value_cap, compress)
     if grad_label_max > 0:
         if network is None:
             raise ValueError("grad_label_max needs the network whose standardisation measures the gradient labels")
@@ -251,6 +249,5 @@ def capped(value: np.ndarray, value_cap: float, compress: bool = False) -> np.nd
     value = np.asarray(value, dtype=np.float64)
     if value_cap <= 0:
         return value
-    if not compress:
-        return np.minimum(value, value_cap)
-    return np.where(value > value_cap, value_cap * (1.0 + np.log(np.maximum(value, value_cap) / value_cap)), value)
+    clipped = np.minimum(value, value_cap)
+    return clipped + value_cap * np.log(np.maximum(value, value_cap) / value_cap) if compress else clipped

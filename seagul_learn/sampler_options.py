@@ -15,6 +15,8 @@ import dataclasses
 from dataclasses import dataclass, field
 from typing import Any, ClassVar, Literal
 
+from seagul_learn.config_parts import omitted
+
 Selection = Literal["farthest", "spread", "lowest", "random"]
 """How the closed-loop sampler chooses a round's queries among the collected ones (:attr:`ClosedLoopOptions.selection`;
 :mod:`seagul_learn.closed_loop` describes each)."""
@@ -49,9 +51,9 @@ class SamplerOptions:
         settings of runs made before it existed stay as they were."""
         out: dict[str, Any] = {"name": self.name}
         for f in dataclasses.fields(self):  # type: ignore[arg-type]
-            value = getattr(self, f.name)
-            if f.metadata.get("omit_default") and value == f.default:
+            if omitted(self, f.name):
                 continue
+            value = getattr(self, f.name)
             out[f.name] = list(value) if isinstance(value, tuple) else value
         return out
 

@@ -114,18 +114,17 @@ def test_selection_rounds_needs_keep_best_and_is_written_only_when_set(tmp_path)
     assert _cl_config(tmp_path, sampler__keep_best=True, selection__rounds=2).to_dict()["selection"]["rounds"] == 2
 
 
-def test_a_run_with_selection_rounds_keeps_every_round_and_deploys_the_selected_one(tmp_path):
+def _selecting_run(tmp_path, **overrides):
+    """A toy closed-loop run that keeps every round and selects among 2 of them (``overrides`` as ``_cl_config``'s)."""
     run = tmp_path / "run"
-    config = _cl_config(
-        tmp_path,
-        sampler__keep_best=True,
-        sampler__warmup_rounds=0,
-        sampler__episodes=1,
-        selection__rounds=2,
-        selection__episodes=1,
-        selection__jit=False,
-    )
+    keep_two = {"sampler__keep_best": True, "sampler__warmup_rounds": 0, "sampler__episodes": 1, "selection__rounds": 2}
+    config = _cl_config(tmp_path, **keep_two, **overrides)
     train(config, run, batch_solver=ToySolver(TASK), solver_name="toy")
+    return run
+
+
+def test_a_run_with_selection_rounds_keeps_every_round_and_deploys_the_selected_one(tmp_path):
+    run = _selecting_run(tmp_path, selection__episodes=1, selection__jit=False)
     log = [e for e in json.loads((run / "metrics.json").read_text())["sampler_log"] if e.get("episodes")]
     kept = kept_rounds(run)
     assert [rec["round"] for _, rec in kept] == [e["round"] for e in log]
@@ -154,16 +153,7 @@ def test_a_selection_other_than_the_best_collector_becomes_network_pt_and_the_fu
         pytest.fail("every kept round is the best collector's network")
 
     monkeypatch.setattr(training, "select_kept_round", other)
-    run = tmp_path / "run"
-    config = _cl_config(
-        tmp_path,
-        sampler__keep_best=True,
-        sampler__warmup_rounds=0,
-        sampler__episodes=1,
-        selection__rounds=2,
-        runtime__snapshots=(18,),
-    )
-    train(config, run, batch_solver=ToySolver(TASK), solver_name="toy")
+    run = _selecting_run(tmp_path, runtime__snapshots=(18,))
     best = json.loads((run / "network_best.json").read_text())
     chosen = ValueNetwork.load(run / "rounds" / f"network_{best['solves_before_round']}.pt").casadi_parameters()
     for name in ("network.pt", "network_18.pt", "network_best.pt"):
