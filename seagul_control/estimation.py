@@ -49,7 +49,9 @@ class ParameterEstimator:
             outside the declared box is still estimated where it is: on acrobots drawn from twice the box the
             10-step learned MPC goes from 18 % (estimate confined to Theta) to 72 % at 3, and on robots from
             Theta it is unchanged (docs/experiments/robust.md).
-        min_transitions: no estimate (the task's own ``theta``) before this many transitions.
+        min_transitions: no estimate (the task's own ``theta``) before this many transitions (None: the task's
+            :attr:`~seagul_envs.tasks.parameters.ParameterSpace.estimator_min_transitions`, 3 unless the task says
+            otherwise).
         codegen: evaluate the one-period map and its Jacobian from compiled C (generated once per task and cached
             on disk, :func:`seagul_control.codegen.compile_nlp_library`); CasADi's virtual machine when False or
             when no C compiler is found. Compiled, an update over 50 acrobot transitions takes about 1 ms instead of
@@ -64,11 +66,13 @@ class ParameterEstimator:
         prior: float | None = None,
         box_scale: float = 3.0,
         iterations: int = 3,
-        min_transitions: int = 3,
+        min_transitions: int | None = None,
         codegen: bool = True,
     ) -> None:
         if task.parameters is None:
             raise ValueError(f"{task.name}: a ParameterEstimator needs a task that declares its parameters")
+        if min_transitions is None:
+            min_transitions = task.parameters.estimator_min_transitions
         if window < 1 or iterations < 1 or min_transitions < 1:
             raise ValueError(
                 f"window, iterations and min_transitions must be >= 1, got {window}, {iterations}, {min_transitions}"

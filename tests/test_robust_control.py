@@ -110,6 +110,34 @@ def test_the_estimators_default_prior_is_the_tasks():
     assert any("estimator_prior" in p for p in bad.problems(glider.params, glider.nx, glider.nu))
 
 
+def test_the_estimators_default_wait_is_the_tasks():
+    """``min_transitions=None`` takes ``ParameterSpace.estimator_min_transitions``: the acrobot's estimate stays at
+    the model for two transitions and moves at the third, the glider's moves at the first; a given count wins, and a
+    space with a count below one is refused by its checks."""
+    import dataclasses
+
+    from seagul_envs import make_task
+
+    glider = make_task("glider")
+    assert ParameterEstimator(TASK, codegen=False).min_transitions == TASK.parameters.estimator_min_transitions == 3
+    est = ParameterEstimator(glider, codegen=False)
+    assert est.min_transitions == glider.parameters.estimator_min_transitions == 1
+    assert ParameterEstimator(glider, min_transitions=4, codegen=False).min_transitions == 4
+    space = glider.parameters
+    theta = space.low + np.array([0.9, 0.1, 0.8, 0.2]) * (space.high - space.low)
+    x, u = np.asarray(glider.x0_low + glider.x0_high, dtype=float) / 2, np.array([0.1])
+    x_next = np.asarray(est._f(x, u, theta)[0]).ravel()
+    assert np.max(np.abs(est.update(x, u, x_next) - glider.theta)) > 0
+    acro = ParameterEstimator(TASK, codegen=False)
+    robot = TASK.parameters.low + 0.8 * (TASK.parameters.high - TASK.parameters.low)
+    for k, (x, u, nxt) in enumerate(_transitions(robot, 3)):
+        moved = np.max(np.abs(acro.update(x, u, nxt) - TASK.theta)) > 0
+        assert moved == (k == 2), k
+    for bad_count in (0, 1.5, True):
+        bad = dataclasses.replace(space, estimator_min_transitions=bad_count)
+        assert any("estimator_min_transitions" in p for p in bad.problems(glider.params, glider.nx, glider.nu))
+
+
 def test_the_estimate_survives_a_balance_at_rest_that_says_nothing_about_the_robot():
     """A swing determines theta; then the robot rests upright (x_next = x for every theta). The default window
     keeps the swing, so the estimate stays at the truth; a window that forgets it lets the prior pull the

@@ -55,6 +55,10 @@ class ParameterSpace:
     """Default weight of an online estimate's pull towards the model's values, per squared box width
     (``seagul_control.estimation.ParameterEstimator``'s ``prior``). It keeps what the data do not determine at the
     model's values: an acrobot at rest says little about its masses."""
+    estimator_min_transitions: int = 3
+    """Default number of transitions an online estimate waits for before it leaves the model's values
+    (``ParameterEstimator``'s ``min_transitions``). Three keep an acrobot near rest, whose first transitions say
+    little, at the model; a task whose first transition already determines what its value sees may start at one."""
 
     @property
     def size(self) -> int:
@@ -199,6 +203,9 @@ class ParameterSpace:
             out.append(f"parameters.invariants must be 1 to {k} rows of {k} finite exponents, got {inv!r}")
         if not (isinstance(self.estimator_prior, (int, float)) and 0 < self.estimator_prior < np.inf):
             out.append(f"parameters.estimator_prior must be a positive number, got {self.estimator_prior!r}")
+        n_min = self.estimator_min_transitions
+        if not (isinstance(n_min, (int, np.integer)) and not isinstance(n_min, bool) and n_min >= 1):
+            out.append(f"parameters.estimator_min_transitions must be an integer >= 1, got {n_min!r}")
         if not (isinstance(self.units, tuple) and len(self.units) == k):
             out.append(f"parameters.units must give one unit per name ({k}), got {self.units!r}")
         fn = self.dynamics
