@@ -11,10 +11,11 @@ Per task, every seed's robust network of ``param_adversary.json``'s ``robust.per
     LimitedLookaheadMPC(task, ValueNetwork.load(network), horizon=H, model_params=True, estimate_robot=True)
 
 and once per variant of :data:`VARIANTS`, each changing one setting of that deployment (the lookahead, the solver's
-iteration limit, the guard of the learned terminal cost, the online estimate's prior or box, or the robot known
-instead of estimated). Every run flies the same ``--starts`` validation starts (``validation_starts``), each on its
-own robot from Theta (``validation_robots``): the streams the RL runs select their checkpoints on, never the
-held-out starts x robots the shipped figures are measured on, so a setting chosen here is not chosen on the test.
+iteration limit, the guard of the learned terminal cost, the online estimate's prior, box or first transition, or
+the robot known instead of estimated). Every run flies the same ``--starts`` validation starts
+(``validation_starts``), each on its own robot from Theta (``validation_robots``): the streams the RL runs select
+their checkpoints on, never the held-out starts x robots the shipped figures are measured on, so a setting chosen
+here is not chosen on the test.
 
 The result file holds, per task, ``{"horizon", "starts", "set", "variants": [{"name", "label", "options",
 "knows_robot", "success_per_seed", "success_median", "fallback_steps", "crashes", "median_ms", "p95_ms"}]}`` (the
@@ -76,6 +77,11 @@ VARIANTS: tuple[Variant, ...] = (
     Variant("estimate-prior-1e-3", "estimate's prior weight 1e-3", (("estimate_robot", (("prior", 1e-3),)),)),
     Variant("estimate-prior-1e-7", "estimate's prior weight 1e-7", (("estimate_robot", (("prior", 1e-7),)),)),
     Variant("estimate-strong-prior", "estimate's prior weight 0.1", (("estimate_robot", (("prior", 0.1),)),)),
+    Variant(
+        "estimate-after-3",
+        "estimate from the third transition (the glider's default: the first)",
+        (("estimate_robot", (("min_transitions", 3),)),),
+    ),
 )
 """The deployments measured; ``horizon`` options are offsets from the shipped horizon."""
 
