@@ -101,7 +101,9 @@ environment steps. The glider's PPO perches from every start of the model's robo
 (``bench_rl_baselines.FULL_STEPS``); over robots its validation success was still rising there (0.16 at 100 k to
 0.34 at 500 k), so the runs get four times that. Not the acrobot, whose nominal PPO reaches 3.5 % of its grid after
 8 M steps (below LQR), nor SAC, whose nominal runs stop at 20-40 k steps (1 M steps take about 3 h per seed on this
-CPU): randomising the robot makes the task harder, not easier."""
+CPU): randomising the robot makes the task harder, not easier. A two-seed probe of glider SAC over robots reached
+42-50 % of the validation starts x robots at 130-140 k steps, above PPO's runs (docs/experiments/robust.md): its
+five-seed run is the next baseline to add here."""
 SCALES = (0.5, 1.0, 2.0)
 """Box sizes of the sweep, as multiples of the declared Theta (:meth:`ParameterSpace.scaled`)."""
 NETWORKS = ROOT / "benchmarks" / "results" / "networks"
