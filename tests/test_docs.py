@@ -50,6 +50,7 @@ def test_check_fails_when_a_generated_number_is_edited(tmp_path):
     for name in ("scripts/make_results.py", "README.md", "docs/results.md", "docs/figures/dmc/animations.json"):
         (tmp_path / name).parent.mkdir(parents=True, exist_ok=True)
         shutil.copy2(ROOT / name, tmp_path / name)
+    shutil.copytree(ROOT / "scripts" / "results_docs", tmp_path / "scripts" / "results_docs")
     shutil.copytree(ROOT / "benchmarks" / "results", tmp_path / "benchmarks" / "results")
     assert make_results(tmp_path, "--check").returncode == 0  # the copy is complete
     page = tmp_path / "docs" / "results.md"
