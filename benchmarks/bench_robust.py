@@ -25,9 +25,9 @@ uniformly from the declared box Theta (``ROBOT_SEED``, the robots of ``bench_par
   network with the estimating MPC (``nominal-estimate``);
 * ``lqr``: the task's LQR on the model;
 * ``nominal-ppo``: the shipped PPO baseline (``benchmarks/results/models/<task>_ppo``, trained on the model's robot);
-* ``dr-ppo``: domain-randomised PPO (:data:`DR_RL`): ``--seeds`` runs, each on a robot from Theta per episode
-  (``SB3Config(domain_randomization=True)``), its checkpoint selected on validation starts x robots of their own
-  streams; success per seed and the median (:func:`dr_rows`).
+* ``dr-ppo``, ``dr-sac``: domain-randomised RL (:data:`DR_RL`): per algorithm ``--seeds`` runs, each on a robot
+  from Theta per episode (``SB3Config(domain_randomization=True)``, the env's tuned rl-zoo entry), its checkpoint
+  selected on validation starts x robots of their own streams; success per seed and the median (:func:`dr_rows`).
 
 Also: success against the size of the box (robots drawn from ``Theta.scaled(s, nominal)`` for ``s`` in ``SCALES``:
 each side's ratio to the nominal value raised to ``s``) for the robust, the nominal and the oracle MPC; and the online
@@ -47,7 +47,8 @@ nominal and oracle entries from FILE's task block instead of flying them again: 
 and the oracle's full-horizon solves are most of a run's time. The rows are kept as they are (the file's block then
 says ``"baselines_reused_from"``), so only a benchmark with the same starts, robots and baselines should reuse them;
 ``--fly-baselines NAME ...`` flies the named ones again (those whose deployment changed since, e.g. the ones that
-share the robust MPC's online estimate), and the block lists them (``"baselines_flown"``).
+share the robust MPC's online estimate); an RL baseline of :data:`DR_RL` that FILE has no row for is trained (its
+completed runs under ``--out`` reused) and flown too; the block lists both (``"baselines_flown"``).
 The last line of stdout is the result as one JSON object.
 """
 
@@ -95,15 +96,17 @@ and less often when the MPC knows the robot), the deployed round chosen on selec
 the round whose collector flew best perched less often on validation starts x robots), and the labels above the cap
 compressed instead of clipped (``robust-compress``: the heavy robots' tails lie mostly above it; docs/experiments/
 robust.md)."""
-DR_RL: dict[str, dict[str, int]] = {"glider": {"PPO": 2_000_000}}
+DR_RL: dict[str, dict[str, int]] = {"glider": {"PPO": 2_000_000, "SAC": 150_000}}
 """Domain-randomised RL per task (``SB3Config(domain_randomization=True)``, the env's tuned entry): algorithm ->
 environment steps. The glider's PPO perches from every start of the model's robot at its nominal budget, 500 k steps
 (``bench_rl_baselines.FULL_STEPS``); over robots its validation success was still rising there (0.16 at 100 k to
-0.34 at 500 k), so the runs get four times that. Not the acrobot, whose nominal PPO reaches 3.5 % of its grid after
-8 M steps (below LQR), nor SAC, whose nominal runs stop at 20-40 k steps (1 M steps take about 3 h per seed on this
-CPU): randomising the robot makes the task harder, not easier. A two-seed probe of glider SAC over robots reached
-42-50 % of the validation starts x robots at 130-140 k steps, above PPO's runs (docs/experiments/robust.md): its
-five-seed run is the next baseline to add here."""
+0.34 at 500 k), so the runs get four times that. The glider's SAC learns far faster per step: in a two-seed probe
+its validation success rose to 46-50 % by 100 k steps and stayed there to 140 k, so the runs get 150 k (1 h 43 min
+per seed with five runs sharing two cores; at about 60 steps per second on one core, 1 M steps take 4.5 hours a
+seed). Over the five seeds the median validation point is then 0.48 at 100 k and 0.50 at 130-150 k
+(docs/experiments/robust.md).
+Not the acrobot, whose nominal PPO reaches 3.5 % of its grid after 8 M steps (below LQR) and whose nominal SAC runs
+stop at 20-40 k steps: randomising the robot makes the task harder, not easier."""
 SCALES = (0.5, 1.0, 2.0)
 """Box sizes of the sweep, as multiples of the declared Theta (:meth:`ParameterSpace.scaled`)."""
 NETWORKS = ROOT / "benchmarks" / "results" / "networks"
@@ -302,13 +305,25 @@ def _median_of(values: list[Any]) -> float | None:
     return float(np.median(finite)) if finite else None
 
 
-def dr_rows(bench: RobustBenchConfig, out: Path, workers: int, ship: bool, score: Any) -> dict[str, dict[str, Any]]:
-    """The domain-randomised RL baselines (``dr-<algo>``): each seed's model selected on its validation starts x
-    robots, flown on the benchmark's starts x robots; success is the median over seeds. The shipped model (``--ship``)
-    is the seed with the best validation point, as for the nominal RL baselines, copied to
-    ``benchmarks/results/models/<task>_<algo>_dr/``."""
+def dr_rows(
+    bench: RobustBenchConfig,
+    out: Path,
+    workers: int,
+    ship: bool,
+    score: Any,
+    algos: list[str] | None = None,
+) -> dict[str, dict[str, Any]]:
+    """The domain-randomised RL baselines (``dr-<algo>``; ``algos``: only these of ``bench.rl_steps``): each seed's
+    model selected on its validation starts x robots, flown on the benchmark's starts x robots; success is the median
+    over seeds. The shipped model (``--ship``) is the seed with the best validation point, as for the nominal RL
+    baselines, copied to ``benchmarks/results/models/<task>_<algo>_dr/``."""
+    unknown = sorted(set(algos or ()) - set(bench.rl_steps))
+    if unknown:
+        raise ValueError(f"{bench.task}: no domain-randomised RL for {unknown}; DR_RL has {list(bench.rl_steps)}")
     rows: dict[str, dict[str, Any]] = {}
     for algo, steps in bench.rl_steps.items():
+        if algos is not None and algo not in algos:
+            continue
         runs = train_dr(bench, out, algo, workers)
         label = f"domain-randomised {algo} ({steps:,} steps)"
         per_seed = []
@@ -437,18 +452,25 @@ def run_task(
         result = score(baselines[name], name)
         return {"controller": baselines[name].label, **{k: v for k, v in result.items() if k != "success"}}
 
+    rl = {f"dr-{algo.lower()}": algo for algo in bench.rl_steps}
+    fresh: list[str] = []  # with --baselines-from: the rows flown again, and the RL rows trained (or reused) and flown
     if reuse is not None:
         fly = set(reuse.get("fly", ()))
-        unknown = sorted(fly - set(baselines))
+        unknown = sorted(fly - set(baselines) - set(rl))
         if unknown:
             raise SystemExit(
-                f"{bench.task}: --fly-baselines names no baseline: {unknown}; there are {sorted(baselines)}"
+                f"{bench.task}: --fly-baselines names no baseline: {unknown}; there are {sorted([*baselines, *rl])}"
             )
         missing = sorted(set(baselines) - set(reuse["baselines"]) - fly)
         if missing:
             raise SystemExit(f"{bench.task}: --baselines-from has no rows {missing}; fly them (drop the option)")
         rows = {name: dict(row) for name, row in reuse["baselines"].items()}
-        rows.update({name: flown(name) for name in sorted(fly)})
+        rows.update({name: flown(name) for name in sorted(fly & set(baselines))})
+        # an RL baseline the file has no row for (an algorithm added to DR_RL since) is run like the named ones
+        todo = [algo for name, algo in rl.items() if name in fly or name not in rows]
+        if todo:
+            rows.update(dr_rows(bench, out, workers, ship, score, algos=todo))
+        fresh = sorted((fly & set(baselines)) | {f"dr-{algo.lower()}" for algo in todo})
     else:
         rows = {name: flown(name) for name in baselines}
         rows.update(dr_rows(bench, out, workers, ship, score))
@@ -508,7 +530,7 @@ def run_task(
     }
     if reuse is not None:
         robust["baselines_reused_from"] = reuse.get("baselines_reused_from", "an earlier run of this benchmark")
-        robust["baselines_flown"] = sorted(reuse.get("fly", ()))
+        robust["baselines_flown"] = fresh
     return {"shipped": shipped, "robust": robust}
 
 

@@ -111,14 +111,18 @@ def test_domain_randomised_rl_rows_train_once_select_on_validation_and_fly_the_b
     from benchmarks import bench_robust
 
     bench = bench_robust.RobustBenchConfig.for_task("glider", quick=True)
-    assert bench.rl_steps == {"PPO": 256} and all(bench.rl_config("PPO", s).domain_randomization for s in (0, 1))
+    assert bench.rl_steps == {"PPO": 256, "SAC": 256}
+    assert all(bench.rl_config(algo, s).domain_randomization for algo in bench.rl_steps for s in (0, 1))
     flown: list = []
 
     def score(spec, name):
         flown.append((spec, name))
         return {"success_rate": 0.25 * len(flown)}
 
-    rows = bench_robust.dr_rows(bench, tmp_path, 1, False, score)
+    with pytest.raises(ValueError, match="no domain-randomised RL for \\['TD3'\\]"):
+        bench_robust.dr_rows(bench, tmp_path, 1, False, score, algos=["TD3"])
+    rows = bench_robust.dr_rows(bench, tmp_path, 1, False, score, algos=["PPO"])  # one algorithm of the task's
+    assert list(rows) == ["dr-ppo"]
     row = rows["dr-ppo"]
     assert [name for _, name in flown] == ["dr-ppo-seed0", "dr-ppo-seed1"]
     assert all(spec.kind == "sb3" and spec.path.endswith("best/model.zip") for spec, _ in flown)
@@ -126,7 +130,7 @@ def test_domain_randomised_rl_rows_train_once_select_on_validation_and_fly_the_b
     assert row["env_steps"] >= 256 and [r["seed"] for r in row["per_seed"]] == [0, 1]
     # completed runs of the same config are reused, not trained again
     monkeypatch.setattr(bench_robust, "train_sb3", lambda *a, **k: pytest.fail("retrained a completed run"))
-    again = bench_robust.dr_rows(bench, tmp_path, 1, False, score)
+    again = bench_robust.dr_rows(bench, tmp_path, 1, False, score, algos=["PPO"])
     assert again["dr-ppo"]["per_seed"][0]["selected_at"] == row["per_seed"][0]["selected_at"]
 
 
@@ -170,7 +174,14 @@ def test_baselines_from_a_results_file_fly_only_the_robust_mpc(tmp_path, monkeyp
 
     monkeypatch.setattr(bench_robust, "closed_loop", fake_closed_loop)
     monkeypatch.setattr(bench_robust, "estimator_trace", lambda *a, **k: {})
-    monkeypatch.setattr(bench_robust, "dr_rows", lambda *a, **k: pytest.fail("flew the RL baselines"))
+    trained: list = []
+
+    def fake_dr_rows(bench, out, workers, ship, score, algos=None):
+        trained.append(algos)
+        return {f"dr-{algo.lower()}": {"controller": algo, "success_rate": 0.25} for algo in algos}
+
+    monkeypatch.setattr(bench_robust, "dr_rows", fake_dr_rows)
+    bench.rl_steps = {algo: 256 for algo in ("PPO", "SAC") if f"dr-{algo.lower()}" in committed["baselines"]}
     nets = [ROOT / r["network"] for r in committed["per_seed"][:2]]
     reuse = {**committed, "baselines_reused_from": "the committed run"}
     block = bench_robust.run_task(bench, tmp_path, 1, False, nets, reuse)
@@ -184,6 +195,7 @@ def test_baselines_from_a_results_file_fly_only_the_robust_mpc(tmp_path, monkeyp
             k: committed["box_sweep"][scale][k] for k in ("nominal", "oracle")
         }
     assert block["shipped"]["oracle_success_rate"] == committed["baselines"]["oracle"]["success_rate"]
+    assert trained == [] and robust["baselines_flown"] == []  # every RL row the benchmark has is in the file
     with pytest.raises(SystemExit, match="no rows"):
         bench_robust.run_task(bench, tmp_path, 1, False, nets, {**reuse, "baselines": {}})
     # a named baseline is flown again and replaces the file's row
@@ -194,3 +206,15 @@ def test_baselines_from_a_results_file_fly_only_the_robust_mpc(tmp_path, monkeyp
     assert again["robust"]["baselines"]["oracle"] == committed["baselines"]["oracle"]
     with pytest.raises(SystemExit, match="names no baseline"):
         bench_robust.run_task(bench, tmp_path, 1, False, nets, {**reuse, "fly": ["nope"]})
+    # an RL baseline the file has no row for is trained and flown; a named one again; the others stay the file's
+    bench.rl_steps = {"PPO": 256, "SAC": 256}
+    without_sac = {k: v for k, v in committed["baselines"].items() if k != "dr-sac"}
+    added = bench_robust.run_task(bench, tmp_path, 1, False, nets, {**reuse, "baselines": without_sac})
+    assert trained == [["SAC"]] and added["robust"]["baselines"]["dr-sac"]["success_rate"] == 0.25
+    assert added["robust"]["baselines_flown"] == ["dr-sac"]
+    assert added["robust"]["baselines"]["dr-ppo"] == committed["baselines"]["dr-ppo"]
+    trained.clear()
+    both = {**without_sac, "dr-sac": {"controller": "SAC", "success_rate": 0.5}}
+    again = bench_robust.run_task(bench, tmp_path, 1, False, nets, {**reuse, "baselines": both, "fly": ["dr-ppo"]})
+    assert trained == [["PPO"]] and again["robust"]["baselines"]["dr-sac"]["success_rate"] == 0.5
+    assert again["robust"]["baselines_flown"] == ["dr-ppo"]
