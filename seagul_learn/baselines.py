@@ -303,7 +303,10 @@ def train_sb3(
     **Extending a run.** When ``out`` holds a completed run of the same config with a smaller ``total_timesteps``
     (:func:`extendable_run`), training continues from its final model and normalisation statistics up to the new
     budget (the curve, the best point and the training time carry over; the learning rate is constant in the tuned
-    entries, so the extension is the same schedule); otherwise a run already in ``out`` is replaced.
+    entries, so the extension is the same schedule); otherwise a run already in ``out`` is replaced. An off-policy
+    run (SAC) also continues from its replay buffer, saved at the end of every such run (``replay_buffer.pkl``): a
+    run without one is refused rather than extended from an empty buffer, which would learn on its first few
+    transitions.
     """
     import torch
     from stable_baselines3.common.callbacks import BaseCallback
@@ -316,6 +319,12 @@ def train_sb3(
     view = learner_view(config.env_id, settings["learner_view"])
     venv = training_env(config, view)
     previous = extendable_run(config, out)
+    if previous is not None and _off_policy(config.algo) and not (out / REPLAY_BUFFER).is_file():
+        raise ValueError(
+            f"{out}: the completed {config.algo} run has no {REPLAY_BUFFER} (it was trained before runs saved "
+            "their replay buffer), so extending it would restart learning from an empty buffer; train the "
+            f"{config.total_timesteps:,} steps in another directory"
+        )
     model = _make_model(config, venv) if previous is None else _load_model(config, venv, out)
     if previous is not None:
         venv = model.get_env()
@@ -373,6 +382,8 @@ def train_sb3(
     )
     point()
     save_policy(model, normalizer, view, out)
+    if _off_policy(config.algo):  # what an extension continues from (train_sb3's docstring)
+        model.save_replay_buffer(out / REPLAY_BUFFER)
     if candidate.is_dir():
         shutil.rmtree(out / "best", ignore_errors=True)
         candidate.rename(out / "best")
@@ -412,8 +423,20 @@ def extendable_run(config: SB3Config, out: str | Path) -> dict[str, Any] | None:
     return dict(stored)
 
 
+REPLAY_BUFFER = "replay_buffer.pkl"
+"""An off-policy run's replay buffer at its end, beside its final ``model.zip`` (SB3's ``save_replay_buffer``)."""
+
+
+def _off_policy(algo: str) -> bool:
+    import stable_baselines3
+    from stable_baselines3.common.off_policy_algorithm import OffPolicyAlgorithm
+
+    return issubclass(getattr(stable_baselines3, algo), OffPolicyAlgorithm)
+
+
 def _load_model(config: SB3Config, venv: Any, out: Path) -> Any:
-    """The final model of the run in ``out`` on ``venv`` (its ``VecNormalize`` statistics restored)."""
+    """The final model of the run in ``out`` on ``venv`` (its ``VecNormalize`` statistics and, off-policy, its
+    replay buffer restored)."""
     import stable_baselines3
     from stable_baselines3.common.vec_env import VecNormalize
 
@@ -421,7 +444,10 @@ def _load_model(config: SB3Config, venv: Any, out: Path) -> Any:
         venv = VecNormalize.load(str(out / "vecnormalize.pkl"), venv.venv)
         venv.training = True
     cls = getattr(stable_baselines3, config.algo)
-    return cls.load(out / "model.zip", env=venv, device="cpu")
+    model = cls.load(out / "model.zip", env=venv, device="cpu")
+    if _off_policy(config.algo):
+        model.load_replay_buffer(out / REPLAY_BUFFER)
+    return model
 
 
 def _write_json(path: Path, payload: Any) -> None:

@@ -16,6 +16,7 @@ from seagul_control.evaluation import EpisodeResult, heldout_starts, start_grid,
 from seagul_envs import make_task
 from seagul_envs.wrappers import LearnerView, learner_env
 from seagul_learn.baselines import (
+    REPLAY_BUFFER,
     SB3Config,
     ZeroPolicy,
     config_from_args,
@@ -260,6 +261,26 @@ def test_a_larger_budget_extends_a_completed_run_from_its_final_model(tmp_path):
     steps = [p["env_steps"] for p in second["curve"]]
     assert steps == sorted(steps) and len(set(steps)) == len(steps)
     assert second["train_wall_s"] >= first["train_wall_s"]
+
+
+def test_an_off_policy_run_is_extended_from_its_replay_buffer(tmp_path):
+    """SAC's extension continues from the run's replay buffer (saved at its end), not from an empty one; a run
+    without the buffer is refused before anything in its directory changes."""
+    from stable_baselines3.common.save_util import load_from_pkl
+
+    config = smoke_config(SB3Config(algo="SAC", seed=3))
+    first = train_sb3(config, tmp_path)
+    assert load_from_pkl(tmp_path / REPLAY_BUFFER).size() == first["env_steps"]
+    longer = replace(config, total_timesteps=2 * config.total_timesteps)
+    second = train_sb3(longer, tmp_path)
+    assert second["extended_from"] == first["env_steps"]
+    # the first run's transitions are still there (an empty buffer would hold only the extension's)
+    assert load_from_pkl(tmp_path / REPLAY_BUFFER).size() == second["env_steps"] == longer.total_timesteps
+    (tmp_path / REPLAY_BUFFER).unlink()
+    before = (tmp_path / "curve.json").read_text()
+    with pytest.raises(ValueError, match=r"no replay_buffer\.pkl"):
+        train_sb3(replace(config, total_timesteps=3 * config.total_timesteps), tmp_path)
+    assert (tmp_path / "curve.json").read_text() == before
     assert not (tmp_path / "best.partial").exists() and (tmp_path / "best" / "model.zip").is_file()
 
 
