@@ -104,9 +104,8 @@ environment steps. The glider's PPO perches from every start of the model's robo
 its validation success rose to 46-50 % by 100 k steps and stayed there to 140 k, so the runs get 150 k (1 h 43 min
 per seed with five runs sharing two cores; at about 60 steps per second on one core, 1 M steps take 4.5 hours a
 seed). Over the five seeds the median validation point is then 0.48 at 100 k and 0.50 at 130-150 k
-(docs/experiments/robust.md).
-Not the acrobot, whose nominal PPO reaches 3.5 % of its grid after 8 M steps (below LQR) and whose nominal SAC runs
-stop at 20-40 k steps: randomising the robot makes the task harder, not easier."""
+(docs/experiments/robust.md). Not the acrobot, whose nominal PPO reaches 3.5 % of its grid after 8 M steps (below
+LQR) and whose nominal SAC runs stop at 20-40 k steps: randomising the robot makes the task harder, not easier."""
 SCALES = (0.5, 1.0, 2.0)
 """Box sizes of the sweep, as multiples of the declared Theta (:meth:`ParameterSpace.scaled`)."""
 NETWORKS = ROOT / "benchmarks" / "results" / "networks"
@@ -465,12 +464,13 @@ def run_task(
         if missing:
             raise SystemExit(f"{bench.task}: --baselines-from has no rows {missing}; fly them (drop the option)")
         rows = {name: dict(row) for name, row in reuse["baselines"].items()}
-        rows.update({name: flown(name) for name in sorted(fly & set(baselines))})
+        again = sorted(fly & set(baselines))
+        rows.update({name: flown(name) for name in again})
         # an RL baseline the file has no row for (an algorithm added to DR_RL since) is run like the named ones
-        todo = [algo for name, algo in rl.items() if name in fly or name not in rows]
+        todo = {name: algo for name, algo in rl.items() if name in fly or name not in rows}
         if todo:
-            rows.update(dr_rows(bench, out, workers, ship, score, algos=todo))
-        fresh = sorted((fly & set(baselines)) | {f"dr-{algo.lower()}" for algo in todo})
+            rows.update(dr_rows(bench, out, workers, ship, score, algos=list(todo.values())))
+        fresh = sorted([*again, *todo])
     else:
         rows = {name: flown(name) for name in baselines}
         rows.update(dr_rows(bench, out, workers, ship, score))

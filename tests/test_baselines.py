@@ -261,6 +261,7 @@ def test_a_larger_budget_extends_a_completed_run_from_its_final_model(tmp_path):
     steps = [p["env_steps"] for p in second["curve"]]
     assert steps == sorted(steps) and len(set(steps)) == len(steps)
     assert second["train_wall_s"] >= first["train_wall_s"]
+    assert not (tmp_path / "best.partial").exists() and (tmp_path / "best" / "model.zip").is_file()
 
 
 def test_an_off_policy_run_is_extended_from_its_replay_buffer(tmp_path):
@@ -281,7 +282,6 @@ def test_an_off_policy_run_is_extended_from_its_replay_buffer(tmp_path):
     with pytest.raises(ValueError, match=r"no replay_buffer\.pkl"):
         train_sb3(replace(config, total_timesteps=3 * config.total_timesteps), tmp_path)
     assert (tmp_path / "curve.json").read_text() == before
-    assert not (tmp_path / "best.partial").exists() and (tmp_path / "best" / "model.zip").is_file()
 
 
 # ------------------------------------------------------------------------------------------ domain randomisation
